@@ -1,0 +1,104 @@
+"""The callbacks that drive preference-based learning; ``PEBBLE.learn()`` attaches them itself."""
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_pride.common.queries import sample_segment_pairs, select_queries
+
+if TYPE_CHECKING:
+    from sb3_pride.pebble.pebble import PEBBLE
+
+
+class UnsupervisedPretrainingCallback(BaseCallback):
+    """
+    PEBBLE's unsupervised pre-training (Algorithm 1, line 3): until the first feedback session, SAC's critic
+    target uses the state-entropy reward r_int (Eq. 3) in place of r̂.
+    """
+
+    model: "PEBBLE"
+
+    def _on_training_start(self) -> None:
+        self._update()
+
+    def _on_step(self) -> bool:
+        self._update()
+        return True
+
+    def _update(self) -> None:
+        self.model.replay_buffer.intrinsic_reward = self.model.state_entropy if self.model.in_pretraining else None
+
+
+class FeedbackCallback(BaseCallback):
+    """
+    Feedback sessions (Algorithm 1, lines 6–21): the first when pre-training ends, then every
+    ``feedback_interval`` steps while fewer than ``max_feedback`` queries were asked. A session asks
+    ``min(queries_per_session, max_feedback - asked)`` queries, trains the reward model and relabels the buffer.
+    After the first session the critic is reset and trained ``critic_reset_updates`` steps on r̂, as PEBBLE does.
+    """
+
+    model: "PEBBLE"
+
+    def _on_step(self) -> bool:
+        model = self.model
+        if model.feedback_asked >= model.max_feedback or model.num_timesteps < model.next_feedback_step:
+            return True
+        first = model.feedback_sessions == 0
+        if not self.feedback_session():
+            # not one segment fits in the stored episodes yet: try again a segment later
+            model.next_feedback_step = model.num_timesteps + model.segment_length
+            return True
+        model.next_feedback_step = model.num_timesteps + model.feedback_interval
+        if first:
+            model.reset_critic()
+            model.train(gradient_steps=model.critic_reset_updates, batch_size=model.batch_size)
+            model.policy.set_training_mode(False)  # back to rollout mode
+        return True
+
+    def feedback_session(self) -> bool:
+        """Ask, label, learn r̂, relabel. :return: False when no segment could be sampled."""
+        model = self.model
+        n_queries = min(model.queries_per_session, model.max_feedback - model.feedback_asked)
+        # the first session is uniform: the reward model knows nothing yet
+        selection = "uniform" if model.feedback_sessions == 0 else model.query_selection
+        n_candidates = n_queries if selection == "uniform" else n_queries * model.candidates_multiplier
+        candidates = sample_segment_pairs(
+            model.replay_buffer, n_candidates, model.segment_length, model.max_query_episodes, model.preference_rng
+        )
+        if candidates is None:
+            model.check_episodes_fit_segments()
+            return False
+        inputs = np.concatenate([candidates.observations, candidates.actions], axis=-1)
+        if selection != "uniform":
+            chosen = select_queries(model.reward_model.member_segment_returns(inputs), n_queries, selection)
+            candidates, inputs = candidates[chosen], inputs[chosen]
+
+        labels = model.ask_teacher(candidates)
+        labeled = ~np.isnan(labels)
+        model.preferences.add(inputs[labeled], labels[labeled])
+        # skipped queries count as asked (they cost the teacher's time) but not as labels
+        model.feedback_asked += n_queries
+        model.feedback_labeled += int(labeled.sum())
+        model.feedback_sessions += 1
+        self.logger.record("feedback/asked", model.feedback_asked)
+        self.logger.record("feedback/labeled", model.feedback_labeled)
+        self.logger.record("feedback/sessions", model.feedback_sessions)
+        if len(model.preferences) == 0:
+            return True
+
+        loss, accuracy, epochs = model.reward_model.train_epochs(
+            model.preferences, model.reward_epochs, model.reward_batch_size, rng=model.preference_rng
+        )
+        model.relabel()
+        self.logger.record("reward_model/loss", loss)
+        self.logger.record("reward_model/accuracy", accuracy)
+        self.logger.record("reward_model/epochs", epochs)
+        self.logger.record("reward_model/true_reward_corr", model.reward_correlation())
+        if self.verbose > 0:
+            print(
+                f"feedback session {model.feedback_sessions} at step {model.num_timesteps}: "
+                f"{model.feedback_labeled}/{model.feedback_asked} labeled, reward-model accuracy {accuracy:.3f}, "
+                f"corr(r_hat, r_true) {model.reward_correlation():.3f}"
+            )
+        return True

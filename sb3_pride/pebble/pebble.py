@@ -1,0 +1,338 @@
+from typing import Any, ClassVar, Optional, TypeVar, Union
+
+import numpy as np
+import torch as th
+from gymnasium import spaces
+from stable_baselines3 import SAC
+from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
+from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
+from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.sac.policies import SACPolicy
+
+from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
+from sb3_pride.common.entropy import StateEntropyReward
+from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows
+from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
+from sb3_pride.common.teachers import Teacher, make_teacher
+
+SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
+
+
+class PEBBLE(SAC):
+    """
+    PEBBLE: unsupervised Pre-training and preference-Based learning via relaBeLing Experience
+    (Lee, Smith & Abbeel, ICML 2021), the preference-based SAC that PRIDE builds on
+    (Feng et al., 2025, §3.3 and Algorithm 1 without its diffusion lines).
+
+    The environment's reward never reaches SAC: it is kept beside the replay buffer for the teacher and for
+    reporting (Monitor, EvalCallback and ``rollout/ep_rew_mean`` still show the true return). SAC learns from
+    r̂, an ensemble of MLPs trained on the teacher's preferences between segment pairs (Bradley–Terry, Eqs. 1–2),
+    with every stored reward relabeled after each reward update. Before the first feedback, after
+    ``learning_starts`` random steps, SAC is pre-trained for ``unsupervised_steps`` on the k-NN state-entropy
+    reward (Eq. 3); the critic is then reset and trained ``critic_reset_updates`` steps on r̂.
+
+    Parameters not listed here are SAC's, with the same meaning and defaults except ``learning_starts``
+    (PEBBLE: 1000).
+
+    :param teacher: who labels the queries: a ``Teacher`` (a callable, e.g. a person behind a UI) or the name of
+        a B-Pref scripted teacher preset: "oracle", "mistake", "noisy", "skip", "myopic", "equal"
+    :param max_feedback: Q, the total query budget
+    :param feedback_interval: M, env steps between feedback sessions
+    :param queries_per_session: K, queries asked per session (the last session is cut to the budget)
+    :param segment_length: steps per segment (PEBBLE: 50); a segment never crosses an episode end
+    :param query_selection: how queries are picked among ``candidates_multiplier`` × K random pairs:
+        "uniform", "disagreement" (std of the members' P[σ1 ≻ σ0]) or "entropy" (their mean entropy);
+        the first session is always uniform
+    :param candidates_multiplier: candidate pairs per query for the non-uniform selections (PEBBLE: 10)
+    :param max_query_episodes: segments are drawn from this many most recent episodes (PEBBLE: 100)
+    :param unsupervised_steps: env steps of state-entropy pre-training after ``learning_starts`` (PEBBLE: 9000)
+    :param entropy_k: k of the k-NN state entropy (PEBBLE: 5)
+    :param ensemble_size: members of the reward ensemble (PEBBLE: 3)
+    :param reward_net_arch: hidden layers of each member (PEBBLE: 3 × 256)
+    :param reward_learning_rate: Adam step size of the reward model (PEBBLE: 3e-4)
+    :param reward_batch_size: preference pairs per reward minibatch (PEBBLE: 128)
+    :param reward_epochs: most epochs over the preference dataset per session, stopping early at 97% training
+        accuracy (PEBBLE: 50 on DMC, 10 on Meta-World)
+    :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
+    """
+
+    policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
+    replay_buffer: PreferenceReplayBuffer
+    reward_model: RewardEnsemble
+
+    def __init__(
+        self,
+        policy: Union[str, type[SACPolicy]],
+        env: Union[GymEnv, str],
+        learning_rate: Union[float, Schedule] = 3e-4,
+        buffer_size: int = 1_000_000,
+        learning_starts: int = 1000,
+        batch_size: int = 256,
+        tau: float = 0.005,
+        gamma: float = 0.99,
+        train_freq: Union[int, tuple[int, str]] = 1,
+        gradient_steps: int = 1,
+        action_noise: Optional[ActionNoise] = None,
+        replay_buffer_class: Optional[type[ReplayBuffer]] = None,
+        replay_buffer_kwargs: Optional[dict[str, Any]] = None,
+        optimize_memory_usage: bool = False,
+        ent_coef: Union[str, float] = "auto",
+        target_update_interval: int = 1,
+        target_entropy: Union[str, float] = "auto",
+        use_sde: bool = False,
+        sde_sample_freq: int = -1,
+        use_sde_at_warmup: bool = False,
+        stats_window_size: int = 100,
+        tensorboard_log: Optional[str] = None,
+        policy_kwargs: Optional[dict[str, Any]] = None,
+        verbose: int = 0,
+        seed: Optional[int] = None,
+        device: Union[th.device, str] = "auto",
+        teacher: Union[str, Teacher] = "oracle",
+        max_feedback: int = 1000,
+        feedback_interval: int = 20_000,
+        queries_per_session: int = 100,
+        segment_length: int = 50,
+        query_selection: str = "disagreement",
+        candidates_multiplier: int = 10,
+        max_query_episodes: int = 100,
+        unsupervised_steps: int = 9000,
+        entropy_k: int = 5,
+        ensemble_size: int = 3,
+        reward_net_arch: Union[list[int], tuple[int, ...]] = (256, 256, 256),
+        reward_learning_rate: float = 3e-4,
+        reward_batch_size: int = 128,
+        reward_epochs: int = 50,
+        critic_reset_updates: int = 100,
+        _init_setup_model: bool = True,
+    ):
+        for name, value in (
+            ("max_feedback", max_feedback),
+            ("feedback_interval", feedback_interval),
+            ("queries_per_session", queries_per_session),
+            ("segment_length", segment_length),
+            ("candidates_multiplier", candidates_multiplier),
+            ("max_query_episodes", max_query_episodes),
+            ("entropy_k", entropy_k),
+            ("ensemble_size", ensemble_size),
+            ("reward_batch_size", reward_batch_size),
+            ("reward_epochs", reward_epochs),
+        ):
+            if not isinstance(value, (int, np.integer)) or value <= 0:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name, value in (("unsupervised_steps", unsupervised_steps), ("critic_reset_updates", critic_reset_updates)):
+            if not isinstance(value, (int, np.integer)) or value < 0:
+                raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+        if query_selection not in QUERY_SELECTIONS:
+            raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {query_selection!r}")
+        if reward_learning_rate <= 0:
+            raise ValueError(f"reward_learning_rate must be > 0, got {reward_learning_rate}")
+        if replay_buffer_class is not None and not issubclass(replay_buffer_class, PreferenceReplayBuffer):
+            raise ValueError(
+                f"replay_buffer_class must subclass PreferenceReplayBuffer (true rewards kept aside), "
+                f"got {replay_buffer_class.__name__}"
+            )
+        if env is not None:
+            env = self._check_env(env, segment_length, verbose)
+
+        super().__init__(
+            policy,
+            env,
+            learning_rate=learning_rate,
+            buffer_size=buffer_size,
+            learning_starts=learning_starts,
+            batch_size=batch_size,
+            tau=tau,
+            gamma=gamma,
+            train_freq=train_freq,
+            gradient_steps=gradient_steps,
+            action_noise=action_noise,
+            replay_buffer_class=replay_buffer_class or PreferenceReplayBuffer,
+            replay_buffer_kwargs=replay_buffer_kwargs,
+            optimize_memory_usage=optimize_memory_usage,
+            ent_coef=ent_coef,
+            target_update_interval=target_update_interval,
+            target_entropy=target_entropy,
+            use_sde=use_sde,
+            sde_sample_freq=sde_sample_freq,
+            use_sde_at_warmup=use_sde_at_warmup,
+            stats_window_size=stats_window_size,
+            tensorboard_log=tensorboard_log,
+            policy_kwargs=policy_kwargs,
+            verbose=verbose,
+            seed=seed,
+            device=device,
+            _init_setup_model=False,
+        )
+        self.teacher = make_teacher(teacher, seed=seed)
+        self.max_feedback = max_feedback
+        self.feedback_interval = feedback_interval
+        self.queries_per_session = queries_per_session
+        self.segment_length = segment_length
+        self.query_selection = query_selection
+        self.candidates_multiplier = candidates_multiplier
+        self.max_query_episodes = max_query_episodes
+        self.unsupervised_steps = unsupervised_steps
+        self.entropy_k = entropy_k
+        self.ensemble_size = ensemble_size
+        self.reward_net_arch = tuple(reward_net_arch)
+        self.reward_learning_rate = reward_learning_rate
+        self.reward_batch_size = reward_batch_size
+        self.reward_epochs = reward_epochs
+        self.critic_reset_updates = critic_reset_updates
+        # learning state, saved with the model
+        self.feedback_asked = 0
+        self.feedback_labeled = 0
+        self.feedback_sessions = 0
+        self.next_feedback_step = learning_starts + unsupervised_steps
+        self.preferences: Optional[PreferenceDataset] = None
+        self.preference_rng = np.random.default_rng(seed)
+        self.state_entropy = StateEntropyReward(k=entropy_k)
+
+        if _init_setup_model:
+            self._setup_model()
+
+    @staticmethod
+    def _check_env(env: Union[GymEnv, str], segment_length: int, verbose: int) -> GymEnv:
+        """Preference learning needs flat Box observations and Box actions; say how to get them."""
+        env = BaseAlgorithm._wrap_env(maybe_make_env(env, verbose), verbose)
+        obs_space, action_space = env.observation_space, env.action_space
+        if isinstance(obs_space, spaces.Dict):
+            raise ValueError(
+                "env has a Dict observation space (dm_control's default); the reward model and the state entropy "
+                "need one flat vector: wrap it with sb3_pride.envs.flatten_observations(env) (or gymnasium's "
+                "FlattenObservation), or make it as 'sb3_pride/<domain>-<task>-v0', e.g. 'sb3_pride/walker-walk-v0'"
+            )
+        if not isinstance(obs_space, spaces.Box) or len(obs_space.shape) != 1:
+            raise ValueError(f"env must have a 1-D Box observation space, got {obs_space}")
+        if not isinstance(action_space, spaces.Box):
+            raise ValueError(f"env must have a Box (continuous) action space, got {action_space}")
+        specs = env.get_attr("spec")
+        limits = [spec.max_episode_steps for spec in specs if spec is not None and spec.max_episode_steps]
+        if limits and min(limits) < segment_length:
+            raise ValueError(
+                f"segment_length={segment_length} is longer than an episode of this env ({min(limits)} steps)"
+            )
+        return env
+
+    def _setup_model(self) -> None:
+        super()._setup_model()
+        obs_dim = int(np.prod(self.observation_space.shape))
+        action_dim = int(np.prod(self.action_space.shape))
+        self.reward_model = RewardEnsemble(
+            obs_dim,
+            action_dim,
+            n_members=self.ensemble_size,
+            net_arch=self.reward_net_arch,
+            learning_rate=self.reward_learning_rate,
+            device=self.device,
+        )
+        if self.preferences is None:
+            self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
+        self._attach_reward_model()
+
+    def _attach_reward_model(self) -> None:
+        """New transitions get r̂ once a reward model was learned (0 before, overwritten by the first relabel)."""
+        self.replay_buffer.reward_fn = self.reward_model.predict if len(self.preferences) > 0 else None
+
+    @property
+    def in_pretraining(self) -> bool:
+        """True until the first feedback session: SAC then learns from the state-entropy reward."""
+        return self.feedback_sessions == 0
+
+    def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
+        # the algorithm's own callbacks run first, then the user's
+        if callback is None:
+            user_callbacks = []
+        elif isinstance(callback, list):
+            user_callbacks = callback
+        elif isinstance(callback, BaseCallback):
+            user_callbacks = [callback]
+        else:
+            user_callbacks = [ConvertCallback(callback)]
+        return super()._init_callback(self._preference_callbacks() + user_callbacks, progress_bar)
+
+    def _preference_callbacks(self) -> list[BaseCallback]:
+        return [UnsupervisedPretrainingCallback(), FeedbackCallback(verbose=self.verbose)]
+
+    def ask_teacher(self, pairs: SegmentPairs) -> np.ndarray:
+        """The teacher's labels μ for ``pairs``, checked: one per pair, each in [0, 1] or NaN (skipped)."""
+        labels = np.asarray(self.teacher(pairs), dtype=np.float64).reshape(-1)
+        if len(labels) != len(pairs):
+            raise ValueError(f"teacher returned {len(labels)} labels for {len(pairs)} segment pairs")
+        finite = labels[~np.isnan(labels)]
+        if np.any((finite < 0) | (finite > 1)):
+            raise ValueError("teacher labels must be in [0, 1] (P[second segment preferred]) or NaN (skipped)")
+        return labels
+
+    def relabel(self) -> None:
+        """Every stored reward becomes r̂ of the current reward model (Algorithm 1, line 20)."""
+        self._attach_reward_model()
+        self.replay_buffer.relabel(self.reward_model.predict)
+
+    def reward_correlation(self, n_samples: int = 10_000) -> float:
+        """Pearson correlation of r̂ with the true reward on stored transitions: the reward model's health."""
+        obs, actions, true_rewards = self.replay_buffer.transition_sample(n_samples, self.preference_rng)
+        predicted = self.reward_model.predict(obs, actions)
+        if np.std(predicted) == 0 or np.std(true_rewards) == 0:
+            return float("nan")
+        return float(np.corrcoef(predicted, true_rewards)[0, 1])
+
+    def reset_critic(self) -> None:
+        """PEBBLE's reset after pre-training: fresh Q-networks, target copied from them, fresh Adam state.
+        The actor and the entropy coefficient keep what pre-training taught them."""
+        for q_network in self.critic.q_networks:
+            for module in q_network.modules():
+                if hasattr(module, "reset_parameters"):
+                    module.reset_parameters()
+        self.critic_target.load_state_dict(self.critic.state_dict())
+        self.critic.optimizer.state.clear()
+
+    def check_episodes_fit_segments(self) -> None:
+        """Raise when every finished episode is shorter than ``segment_length`` (no query can ever be made)."""
+        buffer = self.replay_buffer
+        rows = chronological_rows(buffer)
+        lengths = []
+        for env_idx in range(buffer.n_envs):
+            ends = np.flatnonzero(buffer.dones[rows, env_idx] > 0)
+            lengths.extend(np.diff(np.concatenate([[-1], ends])).tolist())
+        if lengths and max(lengths) < self.segment_length and len(lengths) >= 2:
+            raise ValueError(
+                f"segment_length={self.segment_length} is longer than every episode so far "
+                f"(longest: {max(lengths)} steps); choose segment_length <= the episode length"
+            )
+
+    def load_replay_buffer(self, path, truncate_last_traj: bool = True) -> None:
+        super().load_replay_buffer(path, truncate_last_traj)
+        if not isinstance(self.replay_buffer, PreferenceReplayBuffer):
+            raise ValueError(f"{path} holds a {type(self.replay_buffer).__name__}, not a PreferenceReplayBuffer")
+        self._attach_reward_model()
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "reward_model"]
+
+    def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
+        state_dicts, variables = super()._get_torch_save_params()
+        return [*state_dicts, "reward_model", "reward_model.optimizer"], variables
+
+    def learn(
+        self: SelfPEBBLE,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        log_interval: int = 4,
+        tb_log_name: str = "PEBBLE",
+        reset_num_timesteps: bool = True,
+        progress_bar: bool = False,
+    ) -> SelfPEBBLE:
+        return super().learn(
+            total_timesteps=total_timesteps,
+            callback=callback,
+            log_interval=log_interval,
+            tb_log_name=tb_log_name,
+            reset_num_timesteps=reset_num_timesteps,
+            progress_bar=progress_bar,
+        )
