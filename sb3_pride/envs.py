@@ -89,7 +89,14 @@ def make_metaworld(env_name: str, seed: Optional[int] = None, **kwargs) -> gym.E
     import metaworld
 
     gym.register_envs(metaworld)
-    env = gym.make("Meta-World/MT1", env_name=env_name, seed=seed, max_episode_steps=METAWORLD_EPISODE_STEPS, **kwargs)
+    env = gym.make(
+        "Meta-World/MT1",
+        env_name=env_name,
+        seed=seed,
+        max_episode_steps=METAWORLD_EPISODE_STEPS,
+        disable_env_checker=True,  # it flags the goal that Meta-World declares in [0, 0]
+        **kwargs,
+    )
     return Float32Observation(EpisodeSuccess(env))
 
 

@@ -1,0 +1,25 @@
+import os
+
+os.environ.setdefault("MUJOCO_GL", "disable")  # no display: dm_control must not try to open one
+
+import pytest
+
+#: a PEBBLE small enough for tests: tiny networks, short phases
+TINY = dict(
+    learning_starts=100,
+    unsupervised_steps=200,
+    feedback_interval=300,
+    max_feedback=60,
+    queries_per_session=20,
+    segment_length=10,
+    batch_size=64,
+    reward_net_arch=(32, 32),
+    reward_epochs=20,
+    critic_reset_updates=10,
+    policy_kwargs=dict(net_arch=[32, 32]),
+)
+
+
+@pytest.fixture
+def tiny_kwargs():
+    return dict(TINY)

@@ -1,0 +1,128 @@
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+from stable_baselines3.common.env_util import make_vec_env
+
+from sb3_pride import PEBBLE, PreferenceReplayBuffer
+
+
+class NaNReward(gym.Wrapper):
+    """The true reward is NaN: if it ever reached SAC, the losses would be NaN."""
+
+    def step(self, action):
+        obs, _, terminated, truncated, info = self.env.step(action)
+        return obs, float("nan"), terminated, truncated, info
+
+
+def test_short_run_on_dm_control(tiny_kwargs):
+    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", seed=0, **tiny_kwargs)
+    model.learn(1200)
+    # sessions at 300 (end of pre-training), 600, 900: 20 queries each, the oracle labels all of them
+    assert model.feedback_sessions == 3
+    assert model.feedback_asked == model.feedback_labeled == 60 == len(model.preferences)
+    assert model.next_feedback_step == 1200
+    # SAC learned from r̂: every stored reward is r̂ of the final reward model
+    buffer = model.replay_buffer
+    n = buffer.pos
+    np.testing.assert_allclose(
+        buffer.rewards[:n, 0], model.reward_model.predict(buffer.observations[:n, 0], buffer.actions[:n, 0]), atol=1e-5
+    )
+    assert not np.allclose(buffer.rewards[:n], buffer.true_rewards[:n])
+    # Monitor still reports the true return of the finished episode
+    assert len(model.ep_info_buffer) == 1
+    assert model.ep_info_buffer[0]["r"] == pytest.approx(buffer.true_rewards[:1000, 0].sum(), rel=1e-4)
+
+
+def test_short_run_on_metaworld_reports_success(tiny_kwargs):
+    tiny_kwargs.update(max_feedback=40)
+    model = PEBBLE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, **tiny_kwargs)
+    model.learn(1100)
+    assert model.feedback_sessions == 2 and model.feedback_asked == 40
+    assert len(model.ep_success_buffer) == 2  # 500-step episodes, is_success read at each end
+    assert np.isfinite(model.reward_correlation())
+
+
+def test_learner_never_sees_the_true_reward(tiny_kwargs):
+    env = make_vec_env("Pendulum-v1", n_envs=2, seed=0, wrapper_class=NaNReward)
+    model = PEBBLE("MlpPolicy", env, seed=0, **tiny_kwargs)
+    model.learn(800)
+    assert model.feedback_sessions >= 1 and np.all(np.isnan(model.replay_buffer.true_rewards[:10]))
+    assert np.all(np.isfinite(model.replay_buffer.rewards))
+    for parameter in model.policy.parameters():
+        assert th.isfinite(parameter).all()
+
+
+def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.learn(250)  # inside pre-training (ends at 300)
+    assert model.in_pretraining and model.replay_buffer.intrinsic_reward is model.state_entropy
+    assert model.state_entropy.stats.count > 100  # r_int was computed for the SAC minibatches
+    model.learn(100, reset_num_timesteps=False)
+    assert not model.in_pretraining and model.replay_buffer.intrinsic_reward is None
+    samples = model.replay_buffer.sample(32)
+    expected = model.reward_model.predict(samples.observations.numpy(), samples.actions.numpy())
+    np.testing.assert_allclose(samples.rewards.numpy().ravel(), expected, atol=1e-5)
+
+
+def test_critic_reset_keeps_actor(tiny_kwargs):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.learn(250)
+    actor = [p.clone() for p in model.actor.parameters()]
+    critic = [p.clone() for p in model.critic.parameters()]
+    model.reset_critic()
+    assert all(th.equal(a, b) for a, b in zip(actor, model.actor.parameters()))
+    assert not any(th.equal(a, b) for a, b in zip(critic, model.critic.parameters()))
+    for p, q in zip(model.critic.parameters(), model.critic_target.parameters()):
+        assert th.equal(p, q)
+    assert len(model.critic.optimizer.state) == 0
+
+
+def test_save_load_round_trip_and_continue(tiny_kwargs, tmp_path):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.learn(700)
+    model.save(tmp_path / "pebble")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = PEBBLE.load(tmp_path / "pebble", env=make_vec_env("Pendulum-v1", n_envs=1))
+    obs = np.random.default_rng(0).normal(size=(64, 3)).astype(np.float32)
+    actions = np.random.default_rng(1).uniform(-1, 1, size=(64, 1)).astype(np.float32)
+    np.testing.assert_array_equal(loaded.reward_model.predict(obs, actions), model.reward_model.predict(obs, actions))
+    np.testing.assert_array_equal(loaded.preferences.inputs, model.preferences.inputs)
+    np.testing.assert_array_equal(loaded.preferences.labels, model.preferences.labels)
+    assert (loaded.feedback_asked, loaded.feedback_sessions) == (model.feedback_asked, model.feedback_sessions)
+    np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
+
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    assert isinstance(loaded.replay_buffer, PreferenceReplayBuffer) and loaded.replay_buffer.reward_fn is not None
+    loaded.learn(300, reset_num_timesteps=False)
+    assert loaded.num_timesteps == 1000
+    assert loaded.feedback_sessions == 3 and loaded.feedback_asked == 60
+
+
+def test_bad_input_names_the_parameter(tiny_kwargs):
+    import shimmy
+
+    gym.register_envs(shimmy)
+    with pytest.raises(ValueError, match="Dict observation space.*flatten"):
+        PEBBLE("MlpPolicy", gym.make("dm_control/cartpole-balance-v0"))
+    with pytest.raises(ValueError, match="action space"):
+        PEBBLE("MlpPolicy", "CartPole-v1")
+    with pytest.raises(ValueError, match="segment_length=300"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", segment_length=300)
+    for name in ("max_feedback", "feedback_interval", "queries_per_session", "segment_length"):
+        for bad in (0, -5):
+            with pytest.raises(ValueError, match=name):
+                PEBBLE("MlpPolicy", "Pendulum-v1", **{name: bad})
+    with pytest.raises(ValueError, match="query_selection"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", query_selection="random")
+    with pytest.raises(ValueError, match="teacher"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", teacher="perfect")
+
+
+def test_a_custom_teacher_is_checked(tiny_kwargs):
+    def teacher(pairs):
+        return np.full(len(pairs), 2.0)
+
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=teacher, **tiny_kwargs)
+    with pytest.raises(ValueError, match="teacher labels"):
+        model.learn(400)

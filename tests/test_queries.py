@@ -1,0 +1,80 @@
+import numpy as np
+import torch as th
+from gymnasium import spaces
+
+from sb3_pride import PreferenceReplayBuffer
+from sb3_pride.common.queries import sample_segment_pairs, segment_starts, select_queries
+
+
+def filled_buffer(n_envs, size, steps, seed=0):
+    """A buffer filled by n_envs streams of episodes of random lengths; obs = (episode id, step in episode)."""
+    rng = np.random.default_rng(seed)
+    buffer = PreferenceReplayBuffer(size * n_envs, spaces.Box(-np.inf, np.inf, (2,)), spaces.Box(-1, 1, (1,)), n_envs=n_envs)
+    episode = np.arange(n_envs) * 1000
+    t = np.zeros(n_envs, dtype=int)
+    length = rng.integers(5, 40, size=n_envs)
+    for _ in range(steps):
+        obs = np.stack([episode, t], axis=1).astype(np.float32)
+        done = t == length - 1
+        buffer.add(obs, obs, np.zeros((n_envs, 1)), np.ones(n_envs), done, [{} for _ in range(n_envs)])
+        t += 1
+        episode = np.where(done, episode + 1, episode)
+        t = np.where(done, 0, t)
+        length = np.where(done, rng.integers(5, 40, size=n_envs), length)
+    return buffer
+
+
+def assert_segments_within_episodes(pairs, k):
+    episode, step = pairs.observations[..., 0], pairs.observations[..., 1]
+    assert np.all(episode == episode[..., :1]), "a segment crossed an episode end"
+    assert np.all(np.diff(step, axis=-1) == 1), "a segment is not consecutive"
+    assert pairs.observations.shape[2] == k
+
+
+def test_segments_never_cross_episode_ends_single_and_two_envs_with_wraparound():
+    for n_envs, steps in ((1, 300), (2, 300), (2, 1000)):  # 1000 steps wrap the 400-row ring
+        buffer = filled_buffer(n_envs, size=400, steps=steps)
+        pairs = sample_segment_pairs(buffer, 2000, 12, max_episodes=100, rng=np.random.default_rng(1))
+        assert_segments_within_episodes(pairs, 12)
+        if n_envs == 2:
+            episodes = pairs.observations[..., 0, 0]
+            assert (episodes < 1000).any() and (episodes >= 1000).any(), "both envs' streams are used"
+
+
+def test_only_recent_episodes_are_queried():
+    buffer = filled_buffer(1, size=5000, steps=3000)
+    newest = buffer.observations[: buffer.pos, 0, 0].max()
+    pairs = sample_segment_pairs(buffer, 500, 5, max_episodes=3, rng=np.random.default_rng(0))
+    assert pairs.observations[..., 0].min() >= newest - 2
+
+
+def test_no_segment_when_episodes_are_too_short():
+    buffer = filled_buffer(1, size=500, steps=300)
+    starts, _ = segment_starts(buffer, 60, max_episodes=100)
+    assert len(starts) == 0
+    assert sample_segment_pairs(buffer, 10, 60, 100, np.random.default_rng(0)) is None
+
+
+def test_query_selection_picks_most_uncertain_pairs():
+    # members agree on pairs 0-2, disagree on pair 3 (disagreement) and are 50/50 on pair 4 (entropy)
+    returns = th.tensor(
+        [
+            [[0.0, 5.0], [0.0, 5.0], [5.0, 0.0], [0.0, 9.0], [0.0, 0.0]],
+            [[0.0, 5.0], [0.0, 5.0], [5.0, 0.0], [9.0, 0.0], [0.0, 0.0]],
+        ]
+    )
+    assert set(select_queries(returns, 1, "disagreement")) == {3}
+    assert set(select_queries(returns, 1, "entropy")) == {4}
+    assert list(select_queries(returns, 2, "uniform")) == [0, 1]
+
+
+def test_relabel_writes_reward_model_output_everywhere():
+    buffer = filled_buffer(2, size=300, steps=500)
+
+    def reward_fn(obs, actions):
+        return np.sin(obs[..., 0]) + obs[..., 1] * 0.01 + actions[..., 0]
+
+    buffer.relabel(reward_fn, batch_size=77)
+    expected = reward_fn(buffer.observations, buffer.actions)
+    np.testing.assert_allclose(buffer.rewards, expected, rtol=1e-5)
+    assert np.all(buffer.true_rewards == 1.0)  # the true reward is untouched
