@@ -27,7 +27,7 @@ class UnsupervisedPretrainingCallback(BaseCallback):
         return True
 
     def _update(self) -> None:
-        self.model.replay_buffer.intrinsic_reward = self.model.state_entropy if self.model.in_pretraining else None
+        self.model.real_buffer.intrinsic_reward = self.model.state_entropy if self.model.in_pretraining else None
 
 
 class FeedbackCallback(BaseCallback):
@@ -64,7 +64,7 @@ class FeedbackCallback(BaseCallback):
         selection = "uniform" if model.feedback_sessions == 0 else model.query_selection
         n_candidates = n_queries if selection == "uniform" else n_queries * model.candidates_multiplier
         candidates = sample_segment_pairs(
-            model.replay_buffer, n_candidates, model.segment_length, model.max_query_episodes, model.preference_rng
+            model.real_buffer, n_candidates, model.segment_length, model.max_query_episodes, model.preference_rng
         )
         if candidates is None:
             model.check_episodes_fit_segments()

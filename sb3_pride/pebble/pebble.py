@@ -61,6 +61,8 @@ class PEBBLE(SAC):
     """
 
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
+    #: the replay buffer class this algorithm needs (a user's ``replay_buffer_class`` must subclass it)
+    buffer_class: ClassVar[type[PreferenceReplayBuffer]] = PreferenceReplayBuffer
     replay_buffer: PreferenceReplayBuffer
     reward_model: RewardEnsemble
 
@@ -131,9 +133,9 @@ class PEBBLE(SAC):
             raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {query_selection!r}")
         if reward_learning_rate <= 0:
             raise ValueError(f"reward_learning_rate must be > 0, got {reward_learning_rate}")
-        if replay_buffer_class is not None and not issubclass(replay_buffer_class, PreferenceReplayBuffer):
+        if replay_buffer_class is not None and not issubclass(replay_buffer_class, self.buffer_class):
             raise ValueError(
-                f"replay_buffer_class must subclass PreferenceReplayBuffer (true rewards kept aside), "
+                f"replay_buffer_class must subclass {self.buffer_class.__name__} (true rewards kept aside), "
                 f"got {replay_buffer_class.__name__}"
             )
         if env is not None:
@@ -151,7 +153,7 @@ class PEBBLE(SAC):
             train_freq=train_freq,
             gradient_steps=gradient_steps,
             action_noise=action_noise,
-            replay_buffer_class=replay_buffer_class or PreferenceReplayBuffer,
+            replay_buffer_class=replay_buffer_class or self.buffer_class,
             replay_buffer_kwargs=replay_buffer_kwargs,
             optimize_memory_usage=optimize_memory_usage,
             ent_coef=ent_coef,
@@ -237,7 +239,12 @@ class PEBBLE(SAC):
 
     def _attach_reward_model(self) -> None:
         """New transitions get r̂ once a reward model was learned (0 before, overwritten by the first relabel)."""
-        self.replay_buffer.reward_fn = self.reward_model.predict if len(self.preferences) > 0 else None
+        self.real_buffer.reward_fn = self.reward_model.predict if len(self.preferences) > 0 else None
+
+    @property
+    def real_buffer(self) -> PreferenceReplayBuffer:
+        """Where the agent's own transitions and their true rewards are (the whole replay buffer in PEBBLE)."""
+        return self.replay_buffer
 
     @property
     def in_pretraining(self) -> bool:
@@ -272,11 +279,11 @@ class PEBBLE(SAC):
     def relabel(self) -> None:
         """Every stored reward becomes r̂ of the current reward model (Algorithm 1, line 20)."""
         self._attach_reward_model()
-        self.replay_buffer.relabel(self.reward_model.predict)
+        self.real_buffer.relabel(self.reward_model.predict)
 
     def reward_correlation(self, n_samples: int = 10_000) -> float:
         """Pearson correlation of r̂ with the true reward on stored transitions: the reward model's health."""
-        obs, actions, true_rewards = self.replay_buffer.transition_sample(n_samples, self.preference_rng)
+        obs, actions, true_rewards = self.real_buffer.transition_sample(n_samples, self.preference_rng)
         predicted = self.reward_model.predict(obs, actions)
         if np.std(predicted) == 0 or np.std(true_rewards) == 0:
             return float("nan")
@@ -294,7 +301,7 @@ class PEBBLE(SAC):
 
     def check_episodes_fit_segments(self) -> None:
         """Raise when every finished episode is shorter than ``segment_length`` (no query can ever be made)."""
-        buffer = self.replay_buffer
+        buffer = self.real_buffer
         rows = chronological_rows(buffer)
         lengths = []
         for env_idx in range(buffer.n_envs):
@@ -308,8 +315,8 @@ class PEBBLE(SAC):
 
     def load_replay_buffer(self, path, truncate_last_traj: bool = True) -> None:
         super().load_replay_buffer(path, truncate_last_traj)
-        if not isinstance(self.replay_buffer, PreferenceReplayBuffer):
-            raise ValueError(f"{path} holds a {type(self.replay_buffer).__name__}, not a PreferenceReplayBuffer")
+        if not isinstance(self.replay_buffer, self.buffer_class):
+            raise ValueError(f"{path} holds a {type(self.replay_buffer).__name__}, not a {self.buffer_class.__name__}")
         self._attach_reward_model()
 
     def _excluded_save_params(self) -> list[str]:

@@ -1,0 +1,265 @@
+"""
+The diffusion model PRIDE trains on the agent's transitions (Feng et al., 2025, §3.4 and §4), in the form SynthER
+uses (Lu et al., 2023): EDM — "Elucidating the Design Space of Diffusion-Based Generative Models" (Karras et al.,
+2022) — preconditioning around a residual-MLP denoiser, log-normal training noise, Karras noise schedule and a
+stochastic Heun sampler. It works on any set of flat vectors: ``fit(data)``, then ``sample(n)``.
+"""
+
+import copy
+import math
+import time
+from dataclasses import dataclass
+from typing import Optional
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.utils import get_device
+from torch import nn
+
+
+class ResidualBlock(nn.Module):
+    """h + W·act(h) (SynthER's online configuration: no layer norm)."""
+
+    def __init__(self, width: int):
+        super().__init__()
+        self.linear = nn.Linear(width, width)
+
+    def forward(self, h: th.Tensor) -> th.Tensor:
+        return h + self.linear(th.relu(h))
+
+
+class ResidualMLPDenoiser(nn.Module):
+    """
+    F_θ(x, c_noise): the input projected to ``dim_t`` plus a random-Fourier embedding of the noise level, then
+    ``n_blocks`` residual blocks of ``width`` units, then a projection back to the data dimension.
+
+    :param dim: data dimension
+    :param width: residual-block width (SynthER: 1024)
+    :param n_blocks: residual blocks (SynthER: 6)
+    :param dim_t: width of the time embedding (SynthER: 256)
+    :param fourier_features: random Fourier features of the noise level (SynthER: 16)
+    """
+
+    def __init__(self, dim: int, width: int = 256, n_blocks: int = 3, dim_t: int = 128, fourier_features: int = 16):
+        super().__init__()
+        # frozen random frequencies: the embedding is [t, sin(2π w t), cos(2π w t)]
+        self.register_buffer("frequencies", th.randn(fourier_features // 2))
+        self.time_mlp = nn.Sequential(
+            nn.Linear(2 * (fourier_features // 2) + 1, dim_t), nn.SiLU(), nn.Linear(dim_t, dim_t)
+        )
+        self.input_projection = nn.Linear(dim, dim_t)
+        self.body = nn.Sequential(nn.Linear(dim_t, width), *[ResidualBlock(width) for _ in range(n_blocks)], nn.ReLU())
+        self.output_projection = nn.Linear(width, dim)
+
+    def forward(self, x: th.Tensor, c_noise: th.Tensor) -> th.Tensor:
+        t = c_noise.reshape(-1, 1)
+        angles = 2 * math.pi * t * self.frequencies
+        embedding = th.cat([t, angles.sin(), angles.cos()], dim=-1)
+        h = self.input_projection(x) + self.time_mlp(embedding)
+        return self.output_projection(self.body(h))
+
+
+@dataclass
+class FitInfo:
+    """What one ``fit`` did: the mean loss of its last 10% of steps, its steps and seconds."""
+
+    loss: float
+    steps: int
+    seconds: float
+
+
+class ElucidatedDiffusion(nn.Module):
+    """
+    An EDM diffusion model over flat vectors, z-scored per dimension (statistics refit at every ``fit``).
+
+    Denoiser D(x; σ) = c_skip(σ)·x + c_out(σ)·F_θ(c_in(σ)·x, ln(σ)/4), with c_skip = σ_d²/(σ² + σ_d²),
+    c_out = σσ_d/√(σ² + σ_d²), c_in = 1/√(σ² + σ_d²). Training minimizes λ(σ)·‖D(x + σn; σ) − x‖²,
+    λ(σ) = (σ² + σ_d²)/(σσ_d)², with ln σ ~ N(P_mean, P_std²). Samples come from the EMA of θ, by the Heun
+    sampler with churn on the Karras schedule σ_i = (σ_max^{1/ρ} + i/(N−1)(σ_min^{1/ρ} − σ_max^{1/ρ}))^ρ.
+    Defaults are SynthER's EDM constants; sizes and budgets default to a CPU-friendly scale
+    (SynthER: width 1024, 6 blocks, dim_t 256, 100k training steps, 128 sampling steps).
+
+    Only the EMA weights and the normalizer are state (``state_dict``); each ``fit`` trains a copy of them with a
+    fresh AdamW and cosine schedule (``warm_start=False``: from a fresh initialization, as SynthER).
+
+    :param dim: data dimension
+    :param width: residual-block width
+    :param n_blocks: residual blocks
+    :param dim_t: time-embedding width
+    :param train_steps: gradient steps per ``fit``
+    :param batch_size: training minibatch
+    :param learning_rate: AdamW step size (cosine-annealed to 0 over ``train_steps``)
+    :param sample_steps: N, sampler steps (each a Heun step: two network passes but the last)
+    :param sample_batch_size: vectors denoised at once
+    :param ema_decay: EMA decay (updated every ``ema_every`` steps, with a warm-up)
+    :param warm_start: start each ``fit`` from the current EMA weights instead of a new initialization
+    :param skip_normalization: dimensions left unnormalized (e.g. a 0/1 terminal flag)
+    :param seed: seed of the model's own random generators (the global torch/numpy RNGs are never touched)
+    :param device: torch device
+    """
+
+    def __init__(
+        self,
+        dim: int,
+        width: int = 256,
+        n_blocks: int = 3,
+        dim_t: int = 128,
+        train_steps: int = 2000,
+        batch_size: int = 256,
+        learning_rate: float = 3e-4,
+        sample_steps: int = 32,
+        sample_batch_size: int = 50_000,
+        ema_decay: float = 0.995,
+        ema_every: int = 10,
+        warm_start: bool = True,
+        skip_normalization: tuple[int, ...] = (),
+        sigma_min: float = 0.002,
+        sigma_max: float = 80.0,
+        sigma_data: float = 1.0,
+        rho: float = 7.0,
+        p_mean: float = -1.2,
+        p_std: float = 1.2,
+        s_churn: float = 80.0,
+        s_tmin: float = 0.05,
+        s_tmax: float = 50.0,
+        s_noise: float = 1.003,
+        seed: Optional[int] = None,
+        device: th.device | str = "auto",
+    ):
+        super().__init__()
+        for name, value in (("dim", dim), ("width", width), ("n_blocks", n_blocks), ("train_steps", train_steps),
+                            ("batch_size", batch_size), ("sample_steps", sample_steps)):  # fmt: skip
+            if value < 1:
+                raise ValueError(f"diffusion {name} must be >= 1, got {value}")
+        self.dim = dim
+        self.architecture = dict(width=width, n_blocks=n_blocks, dim_t=dim_t)
+        self.train_steps = train_steps
+        self.batch_size = batch_size
+        self.learning_rate = learning_rate
+        self.sample_steps = sample_steps
+        self.sample_batch_size = sample_batch_size
+        self.ema_decay = ema_decay
+        self.ema_every = ema_every
+        self.warm_start = warm_start
+        self.skip_normalization = tuple(skip_normalization)
+        self.sigma_min, self.sigma_max, self.sigma_data, self.rho = sigma_min, sigma_max, sigma_data, rho
+        self.p_mean, self.p_std = p_mean, p_std
+        self.s_churn, self.s_tmin, self.s_tmax, self.s_noise = s_churn, s_tmin, s_tmax, s_noise
+        self.device_ = get_device(device)
+        self.generator = th.Generator(device=self.device_)
+        self.generator.manual_seed(seed if seed is not None else int(np.random.SeedSequence().entropy % 2**63))
+        self.rng = np.random.default_rng(seed)
+        self.ema = self._new_denoiser()
+        self.register_buffer("mean", th.zeros(dim))
+        self.register_buffer("std", th.ones(dim))
+        self.to(self.device_)
+
+    def _new_denoiser(self) -> ResidualMLPDenoiser:
+        # initialized from the model's own generator, leaving the global torch RNG as it was
+        with th.random.fork_rng(devices=[]):
+            th.manual_seed(int(th.randint(0, 2**62, (1,), generator=self.generator)))
+            return ResidualMLPDenoiser(self.dim, **self.architecture).to(self.device_)
+
+    # EDM preconditioning -------------------------------------------------------------------------------------
+    def denoise(self, net: nn.Module, x: th.Tensor, sigma: th.Tensor) -> th.Tensor:
+        """D(x; σ) = c_skip·x + c_out·F(c_in·x, ln(σ)/4), σ of shape (B, 1)."""
+        sd2 = self.sigma_data**2
+        c_skip = sd2 / (sigma**2 + sd2)
+        c_out = sigma * self.sigma_data / (sigma**2 + sd2).sqrt()
+        c_in = 1.0 / (sigma**2 + sd2).sqrt()
+        return c_skip * x + c_out * net(c_in * x, sigma.log() / 4)
+
+    def loss(self, net: nn.Module, x: th.Tensor) -> th.Tensor:
+        """E[λ(σ)·mean_dims (D(x + σn; σ) − x)²] with ln σ ~ N(P_mean, P_std²)."""
+        normal = th.randn((len(x), 1), generator=self.generator, device=x.device)
+        sigma = (self.p_mean + self.p_std * normal).exp()
+        noise = th.randn(x.shape, generator=self.generator, device=x.device)
+        weight = (sigma**2 + self.sigma_data**2) / (sigma * self.sigma_data) ** 2
+        return (weight * (self.denoise(net, x + sigma * noise, sigma) - x) ** 2).mean()
+
+    # normalization -------------------------------------------------------------------------------------------
+    def _fit_normalizer(self, data: np.ndarray) -> None:
+        mean, std = data.mean(axis=0), data.std(axis=0) + 1e-5
+        mean[list(self.skip_normalization)], std[list(self.skip_normalization)] = 0.0, 1.0
+        self.mean.copy_(th.as_tensor(mean, dtype=th.float32))
+        self.std.copy_(th.as_tensor(std, dtype=th.float32))
+
+    # training ------------------------------------------------------------------------------------------------
+    def fit(self, data: np.ndarray, steps: Optional[int] = None) -> FitInfo:
+        """
+        Train on ``data`` (N, dim): minibatches drawn uniformly, AdamW with a cosine schedule and gradient
+        clipping at 1, EMA of the weights. Refits the normalizer first.
+        """
+        data = np.asarray(data, dtype=np.float32)
+        if data.ndim != 2 or data.shape[1] != self.dim:
+            raise ValueError(f"data must have shape (N, {self.dim}), got {data.shape}")
+        if not np.all(np.isfinite(data)):
+            raise ValueError("data contains non-finite values")
+        steps = steps or self.train_steps
+        start = time.perf_counter()
+        self._fit_normalizer(data)
+        normalized = (th.as_tensor(data, device=self.device_) - self.mean) / self.std
+        net = copy.deepcopy(self.ema) if self.warm_start else self._new_denoiser()
+        net.train()
+        optimizer = th.optim.AdamW(net.parameters(), lr=self.learning_rate, betas=(0.9, 0.99), weight_decay=0.0)
+        schedule = th.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=steps)
+        if not self.warm_start:
+            self.ema.load_state_dict(net.state_dict())
+        losses = []
+        for step in range(steps):
+            batch = normalized[th.as_tensor(self.rng.integers(0, len(normalized), self.batch_size), device=self.device_)]
+            loss = self.loss(net, batch)
+            optimizer.zero_grad()
+            loss.backward()
+            nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+            optimizer.step()
+            schedule.step()
+            losses.append(loss.item())
+            if (step + 1) % self.ema_every == 0:
+                self._update_ema(net, n_updates=(step + 1) // self.ema_every)
+        self._update_ema(net, n_updates=steps // self.ema_every + 1)
+        tail = losses[-max(1, steps // 10) :]
+        return FitInfo(loss=float(np.mean(tail)), steps=steps, seconds=time.perf_counter() - start)
+
+    @th.no_grad()
+    def _update_ema(self, net: nn.Module, n_updates: int) -> None:
+        # decay warms up as 1 - (1 + n)^(-2/3), capped at ema_decay
+        decay = min(self.ema_decay, 1.0 - (1.0 + n_updates) ** (-2.0 / 3.0))
+        for ema_param, param in zip(self.ema.parameters(), net.parameters()):
+            ema_param.lerp_(param, 1.0 - decay)
+
+    # sampling ------------------------------------------------------------------------------------------------
+    def noise_levels(self) -> th.Tensor:
+        """Karras schedule σ_0 > … > σ_{N−1}, then σ_N = 0."""
+        ramp = th.linspace(0, 1, self.sample_steps, device=self.device_)
+        inv_rho = 1.0 / self.rho
+        sigmas = (self.sigma_max**inv_rho + ramp * (self.sigma_min**inv_rho - self.sigma_max**inv_rho)) ** self.rho
+        return th.cat([sigmas, th.zeros(1, device=self.device_)])
+
+    @th.no_grad()
+    def sample(self, n: int) -> np.ndarray:
+        """``n`` vectors from the EMA model by the stochastic Heun sampler, in data units."""
+        self.ema.eval()
+        chunks = [self._sample_normalized(min(self.sample_batch_size, n - start)) for start in range(0, n, self.sample_batch_size)]
+        samples = th.cat(chunks) * self.std + self.mean
+        return samples.cpu().numpy()
+
+    def _sample_normalized(self, n: int) -> th.Tensor:
+        sigmas = self.noise_levels()
+        churn = min(self.s_churn / self.sample_steps, math.sqrt(2) - 1)
+        x = sigmas[0] * th.randn((n, self.dim), generator=self.generator, device=self.device_)
+        for i in range(self.sample_steps):
+            sigma, sigma_next = sigmas[i], sigmas[i + 1]
+            # churn: raise the noise level a little by adding fresh noise (only for σ in [S_tmin, S_tmax])
+            gamma = churn if self.s_tmin <= float(sigma) <= self.s_tmax else 0.0
+            sigma_hat = sigma * (1 + gamma)
+            if gamma > 0:
+                fresh = th.randn(x.shape, generator=self.generator, device=self.device_)
+                x = x + (sigma_hat**2 - sigma**2).sqrt() * self.s_noise * fresh
+            slope = (x - self.denoise(self.ema, x, sigma_hat.expand(n, 1))) / sigma_hat
+            x_next = x + (sigma_next - sigma_hat) * slope  # Euler step
+            if sigma_next > 0:  # Heun correction, except at the last step
+                slope_next = (x_next - self.denoise(self.ema, x_next, sigma_next.expand(n, 1))) / sigma_next
+                x_next = x + (sigma_next - sigma_hat) * (slope + slope_next) / 2
+            x = x_next
+        return x
