@@ -1,12 +1,25 @@
 """sb3_pride: preference-based RL for Stable-Baselines3 — PEBBLE and PRIDE (PEBBLE + a diffusion model)."""
 
-from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer, SyntheticReplayBuffer
+from sb3_pride.common.diffusion import ElucidatedDiffusion
 from sb3_pride.common.teachers import TEACHER_PRESETS, ScriptedTeacher, Teacher
 from sb3_pride.envs import register_envs
 from sb3_pride.pebble import PEBBLE
+from sb3_pride.pride import PRIDE
 
 __version__ = "0.1.0"
 
 register_envs()
 
-__all__ = ["PEBBLE", "PreferenceReplayBuffer", "ScriptedTeacher", "TEACHER_PRESETS", "Teacher", "__version__"]
+__all__ = [
+    "PEBBLE",
+    "PRIDE",
+    "DualReplayBuffer",
+    "ElucidatedDiffusion",
+    "PreferenceReplayBuffer",
+    "SyntheticReplayBuffer",
+    "ScriptedTeacher",
+    "TEACHER_PRESETS",
+    "Teacher",
+    "__version__",
+]

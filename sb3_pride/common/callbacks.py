@@ -1,5 +1,6 @@
 """The callbacks that drive preference-based learning; ``PEBBLE.learn()`` attaches them itself."""
 
+import time
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -9,6 +10,7 @@ from sb3_pride.common.queries import sample_segment_pairs, select_queries
 
 if TYPE_CHECKING:
     from sb3_pride.pebble.pebble import PEBBLE
+    from sb3_pride.pride.pride import PRIDE
 
 
 class UnsupervisedPretrainingCallback(BaseCallback):
@@ -102,3 +104,54 @@ class FeedbackCallback(BaseCallback):
                 f"corr(r_hat, r_true) {model.reward_correlation():.3f}"
             )
         return True
+
+
+class DiffusionCallback(BaseCallback):
+    """
+    PRIDE's diffusion phase (Algorithm 1, lines 22–30): every ``diffusion_interval`` steps, once a reward model
+    exists (so synthetic data never carries an untrained reward), fit the diffusion model on the real transitions
+    (s, a, s') and replace the synthetic buffer with ``synthetic_samples`` new ones, rewarded by r̂.
+    Logs the loss, train and generation seconds, samples per second, samples dropped, and the fidelity of the
+    synthetic data: per-dimension gaps of mean and std to the real buffer, in units of the real std.
+    """
+
+    model: "PRIDE"
+
+    def _on_step(self) -> bool:
+        model = self.model
+        if model.in_pretraining or model.synthetic_ratio == 0 or model.num_timesteps < model.next_diffusion_step:
+            return True
+        model.next_diffusion_step = model.num_timesteps + model.diffusion_interval
+        real = model.transition_vectors()
+        fit = model.diffusion.fit(real)
+        start = time.perf_counter()
+        generated = model.diffusion.sample(model.synthetic_samples)
+        kept, dropped = model.store_synthetic(generated)
+        generate_seconds = time.perf_counter() - start
+        mean_gap, std_gap = fidelity(real, kept)
+        model.diffusion_retrains += 1
+        self.logger.record("diffusion/loss", fit.loss)
+        self.logger.record("diffusion/train_seconds", fit.seconds)
+        self.logger.record("diffusion/generate_seconds", generate_seconds)
+        self.logger.record("diffusion/samples_per_second", len(generated) / max(generate_seconds, 1e-9))
+        self.logger.record("diffusion/samples_dropped", dropped)
+        self.logger.record("diffusion/mean_gap", mean_gap)
+        self.logger.record("diffusion/std_gap", std_gap)
+        self.logger.record("diffusion/retrains", model.diffusion_retrains)
+        if self.verbose > 0:
+            print(
+                f"diffusion retrain {model.diffusion_retrains} at step {model.num_timesteps}: loss {fit.loss:.3f}, "
+                f"fit {fit.seconds:.1f} s, {len(kept)} samples in {generate_seconds:.1f} s ({dropped} dropped), "
+                f"mean gap {mean_gap:.3f} std gap {std_gap:.3f}"
+            )
+        return True
+
+
+def fidelity(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float]:
+    """Mean over dimensions of |mean_syn − mean_real| / std_real and of |std_syn / std_real − 1|."""
+    if len(synthetic) == 0:
+        return float("nan"), float("nan")
+    real_std = real.std(axis=0) + 1e-8
+    mean_gap = np.abs(synthetic.mean(axis=0) - real.mean(axis=0)) / real_std
+    std_gap = np.abs(synthetic.std(axis=0) / real_std - 1.0)
+    return float(mean_gap.mean()), float(std_gap.mean())
