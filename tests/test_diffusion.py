@@ -1,0 +1,56 @@
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_pride import ElucidatedDiffusion
+
+
+def energy_distance(x, y):
+    def mean_dist(a, b):
+        return np.linalg.norm(a[:, None, :] - b[None, :, :], axis=-1).mean()
+
+    return 2 * mean_dist(x, y) - mean_dist(x, x) - mean_dist(y, y)
+
+
+def mixture(n, rng):
+    centers = np.array([[np.cos(t), np.sin(t)] for t in np.linspace(0, 2 * np.pi, 8, endpoint=False)]) * 4
+    return centers[rng.integers(0, 8, n)] + 0.3 * rng.normal(size=(n, 2))
+
+
+def test_fits_a_mixture_of_gaussians_far_better_than_one_gaussian():
+    rng = np.random.default_rng(0)
+    train, held_out = mixture(4000, rng), mixture(800, rng)
+    model = ElucidatedDiffusion(2, width=64, n_blocks=2, dim_t=32, train_steps=1500, sample_steps=24, seed=0)
+    model.fit(train)
+    samples = model.sample(800)
+    gaussian = rng.multivariate_normal(train.mean(0), np.cov(train.T), size=800)
+    diffusion_distance, gaussian_distance = energy_distance(samples, held_out), energy_distance(gaussian, held_out)
+    assert diffusion_distance < 0.25 * gaussian_distance, (diffusion_distance, gaussian_distance)
+
+
+def test_samples_obey_known_linear_dynamics():
+    rng = np.random.default_rng(1)
+    A = np.array([[0.9, 0.2, 0.0], [-0.1, 0.95, 0.1], [0.0, 0.3, 0.8]])
+    B = np.array([[0.5, 0.0], [0.3, 0.2], [0.0, -0.4]])
+    s = rng.normal(size=(6000, 3))
+    a = rng.uniform(-1, 1, size=(6000, 2))
+    data = np.concatenate([s, a, s @ A.T + a @ B.T], axis=1)
+    model = ElucidatedDiffusion(8, width=128, n_blocks=2, dim_t=64, train_steps=1200, sample_steps=24, seed=1)
+    model.fit(data)
+    x = model.sample(2000)
+    residual = x[:, 5:] - (x[:, :3] @ A.T + x[:, 3:5] @ B.T)
+    assert np.all(residual.std(axis=0) < 0.1 * data[:, 5:].std(axis=0))
+    # and they are spread like the data, not collapsed onto a few points
+    np.testing.assert_allclose(x.std(axis=0), data.std(axis=0), rtol=0.15)
+
+
+def test_global_rng_untouched_and_bad_data_rejected():
+    state = th.get_rng_state()
+    model = ElucidatedDiffusion(3, width=16, n_blocks=1, train_steps=5, sample_steps=4, seed=0)
+    model.fit(np.random.default_rng(0).normal(size=(100, 3)))
+    model.sample(10)
+    assert th.equal(state, th.get_rng_state())
+    with pytest.raises(ValueError, match=r"shape \(N, 3\)"):
+        model.fit(np.zeros((10, 4)))
+    with pytest.raises(ValueError, match="non-finite"):
+        model.fit(np.full((10, 3), np.nan))
