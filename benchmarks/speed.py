@@ -1,10 +1,11 @@
 """
-Wall time of PEBBLE (and later PRIDE) against plain SB3 SAC on the true reward, identical networks, one process.
+Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identical networks, one process.
 
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
 
-The algorithms run in turns (SAC, PEBBLE, SAC, PEBBLE, ...) so that machine noise hits them alike; the report
-gives each one's median time and its ratio to SAC's, plus where PEBBLE's extra time goes.
+The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
+gives each one's median time, its ratio to SAC's and to PEBBLE's, and where the extra time goes: feedback
+sessions (reward learning, relabeling, critic reset), diffusion training, generation (samples per second).
 """
 
 import argparse
@@ -20,39 +21,63 @@ import torch as th  # noqa: E402
 from stable_baselines3 import SAC  # noqa: E402
 
 import sb3_pride  # noqa: E402
-from sb3_pride.common.callbacks import FeedbackCallback  # noqa: E402
+from sb3_pride.common.callbacks import DiffusionCallback, FeedbackCallback, UnsupervisedPretrainingCallback  # noqa: E402
 
 #: the CPU tier: 256 × 2 networks, batch 256, one update per step
 SAC_KWARGS = dict(batch_size=256, learning_starts=1000, policy_kwargs=dict(net_arch=[256, 256]))
 PEBBLE_KWARGS = dict(unsupervised_steps=2000, feedback_interval=5000, queries_per_session=50, max_feedback=200)
+#: the CPU tier's diffusion: warm-started, small, few sampling steps
+PRIDE_KWARGS = dict(
+    synthetic_ratio=0.5,
+    diffusion_interval=5000,
+    synthetic_samples=10_000,
+    diffusion_width=256,
+    diffusion_blocks=2,
+    diffusion_train_steps=1000,
+    diffusion_sample_steps=16,
+)
 
 
 class TimedFeedback(FeedbackCallback):
     """The feedback callback, timed (sessions include reward learning, relabeling and the critic reset)."""
 
-    seconds = 0.0
-
     def _on_step(self) -> bool:
         start = time.perf_counter()
         result = super()._on_step()
-        TimedFeedback.seconds += time.perf_counter() - start
+        TIMES["feedback_seconds"] += time.perf_counter() - start
         return result
+
+
+class TimedDiffusion(DiffusionCallback):
+    """The diffusion callback, its training and generation times read from what it logs."""
+
+    def _on_step(self) -> bool:
+        retrains = self.model.diffusion_retrains
+        result = super()._on_step()
+        if self.model.diffusion_retrains > retrains:
+            values = self.logger.name_to_value
+            TIMES["diffusion_train_seconds"] += values["diffusion/train_seconds"]
+            TIMES["generate_seconds"] += values["diffusion/generate_seconds"]
+            TIMES["generated"] += self.model.synthetic_samples
+        return result
+
+
+TIMES: dict[str, float] = defaultdict(float)
 
 
 def run(algo: str, env_id: str, timesteps: int, seed: int) -> dict:
     th.set_num_threads(1)
+    TIMES.clear()
     if algo == "sac":
         model = SAC("MlpPolicy", env_id, seed=seed, **SAC_KWARGS)
     else:
-        model = sb3_pride.PEBBLE("MlpPolicy", env_id, seed=seed, **SAC_KWARGS, **PEBBLE_KWARGS)
-        model._preference_callbacks = lambda: [  # type: ignore[method-assign]
-            sb3_pride.common.callbacks.UnsupervisedPretrainingCallback(),
-            TimedFeedback(),
-        ]
-    TimedFeedback.seconds = 0.0
+        cls, extra = (sb3_pride.PEBBLE, {}) if algo == "pebble" else (sb3_pride.PRIDE, PRIDE_KWARGS)
+        model = cls("MlpPolicy", env_id, seed=seed, **SAC_KWARGS, **PEBBLE_KWARGS, **extra)
+        timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
+        model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
     start = time.perf_counter()
     model.learn(timesteps)
-    return {"seconds": time.perf_counter() - start, "feedback_seconds": TimedFeedback.seconds}
+    return {"seconds": time.perf_counter() - start, **TIMES}
 
 
 def main() -> None:
@@ -60,7 +85,7 @@ def main() -> None:
     parser.add_argument("--env", default="sb3_pride/walker-walk-v0")
     parser.add_argument("--timesteps", type=int, default=15_000)
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--algos", nargs="+", default=["sac", "pebble"])
+    parser.add_argument("--algos", nargs="+", default=["sac", "pebble", "pride"])
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
 
@@ -69,14 +94,23 @@ def main() -> None:
         for algo in args.algos:
             results[algo].append(run(algo, args.env, args.timesteps, seed=repeat))
             print(f"repeat {repeat} {algo}: {results[algo][-1]['seconds']:.1f} s", flush=True)
-    sac = float(np.median([r["seconds"] for r in results["sac"]]))
+    medians = {
+        algo: {key: float(np.median([r.get(key, 0.0) for r in runs])) for key in runs[0]} for algo, runs in results.items()
+    }
     report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "sac_kwargs": SAC_KWARGS,
-              "pebble_kwargs": PEBBLE_KWARGS, "algos": {}}  # fmt: skip
-    for algo, runs in results.items():
-        seconds = float(np.median([r["seconds"] for r in runs]))
-        feedback = float(np.median([r["feedback_seconds"] for r in runs]))
-        report["algos"][algo] = {"median_seconds": seconds, "ratio_to_sac": seconds / sac, "feedback_seconds": feedback}
-        print(f"{algo:8s} {seconds:7.1f} s  ×{seconds / sac:.3f} of SAC  (feedback sessions {feedback:.1f} s)")
+              "pebble_kwargs": PEBBLE_KWARGS, "pride_kwargs": PRIDE_KWARGS, "runs": results, "medians": medians}  # fmt: skip
+    for algo, median in medians.items():
+        line = f"{algo:8s} {median['seconds']:7.1f} s"
+        for base in ("sac", "pebble"):
+            if base in medians and base != algo:
+                line += f"  x{median['seconds'] / medians[base]['seconds']:.3f} of {base.upper()}"
+        line += f"  | feedback sessions {median.get('feedback_seconds', 0):.1f} s"
+        if median.get("generated"):
+            line += (
+                f", diffusion training {median['diffusion_train_seconds']:.1f} s, generation "
+                f"{median['generate_seconds']:.1f} s ({median['generated'] / median['generate_seconds']:.0f} samples/s)"
+            )
+        print(line)
     if args.out:
         with open(args.out, "w") as file:
             json.dump(report, file, indent=2)
