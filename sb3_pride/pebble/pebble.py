@@ -170,7 +170,10 @@ class PEBBLE(SAC):
             device=device,
             _init_setup_model=False,
         )
-        self.teacher = make_teacher(teacher, seed=seed)
+        make_teacher(teacher)  # fail now on a bad preset name
+        # kept as given (a preset name stays a name, so that rl-zoo3 can pass it again on resume)
+        self.teacher = teacher
+        self._scripted_teacher: Optional[tuple[str, Teacher]] = None
         self.max_feedback = max_feedback
         self.feedback_interval = feedback_interval
         self.queries_per_session = queries_per_session
@@ -251,6 +254,22 @@ class PEBBLE(SAC):
         """True until the first feedback session: SAC then learns from the state-entropy reward."""
         return self.feedback_sessions == 0
 
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
+        if reset_num_timesteps and self.num_timesteps > 0:
+            # the step count restarts at 0: keep the schedules' remaining distances
+            self._shift_schedules(-self.num_timesteps)
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+
+    def _shift_schedules(self, steps: int) -> None:
+        self.next_feedback_step = max(0, self.next_feedback_step + steps)
+
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # the algorithm's own callbacks run first, then the user's
         if callback is None:
@@ -266,9 +285,17 @@ class PEBBLE(SAC):
     def _preference_callbacks(self) -> list[BaseCallback]:
         return [UnsupervisedPretrainingCallback(), FeedbackCallback(verbose=self.verbose)]
 
+    def _resolve_teacher(self) -> Teacher:
+        """The teacher object: a preset name becomes a ScriptedTeacher once (its random state is then saved)."""
+        if not isinstance(self.teacher, str):
+            return self.teacher
+        if self._scripted_teacher is None or self._scripted_teacher[0] != self.teacher:
+            self._scripted_teacher = (self.teacher, make_teacher(self.teacher, seed=self.seed))
+        return self._scripted_teacher[1]
+
     def ask_teacher(self, pairs: SegmentPairs) -> np.ndarray:
         """The teacher's labels μ for ``pairs``, checked: one per pair, each in [0, 1] or NaN (skipped)."""
-        labels = np.asarray(self.teacher(pairs), dtype=np.float64).reshape(-1)
+        labels = np.asarray(self._resolve_teacher()(pairs), dtype=np.float64).reshape(-1)
         if len(labels) != len(pairs):
             raise ValueError(f"teacher returned {len(labels)} labels for {len(pairs)} segment pairs")
         finite = labels[~np.isnan(labels)]

@@ -198,6 +198,10 @@ class PRIDE(PEBBLE):
         if self.model_terminals is not None:  # loading a model that was retrained: rebuild before its weights load
             self._build_diffusion()
 
+    def _shift_schedules(self, steps: int) -> None:
+        super()._shift_schedules(steps)
+        self.next_diffusion_step = max(0, self.next_diffusion_step + steps)
+
     @property
     def real_buffer(self) -> PreferenceReplayBuffer:
         """B_real, the agent's own transitions with their true rewards aside."""

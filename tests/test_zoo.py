@@ -1,0 +1,114 @@
+"""rl-zoo3 integration: shipped YAML entries, the CLI in a subprocess, enjoy, -i resume, -optimize with sqlite."""
+
+import argparse
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.zoo import hyperparams_dir, register
+
+HYPERPARAMS = hyperparams_dir()
+FILES = ["sac.yml", "pebble.yml", "pride.yml", "cpu/sac.yml", "cpu/pebble.yml", "cpu/pride.yml"]
+PEBBLE_KEYS = {"teacher", "max_feedback", "feedback_interval", "queries_per_session", "segment_length",
+               "query_selection", "unsupervised_steps", "reward_epochs"}  # fmt: skip
+TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "button-press-v3", "door-open-v3", "sweep-into-v3", "drawer-open-v3"}
+#: tiny settings for CLI runs of a few hundred steps
+TINY = (
+    "learning_starts:100 unsupervised_steps:100 feedback_interval:200 queries_per_session:10 max_feedback:30 "
+    "segment_length:20 batch_size:64 diffusion_interval:200 synthetic_samples:500 diffusion_train_steps:50 "
+    "diffusion_sample_steps:4 policy_kwargs:dict(net_arch=[32,32]) buffer_size:5000"
+).split()
+TINY_PEBBLE = [param for param in TINY if not param.startswith(("diffusion", "synthetic"))]
+
+
+def entries(name):
+    with open(HYPERPARAMS / name) as file:
+        return yaml.safe_load(file)
+
+
+def zoo(*args, cwd):
+    env = {**os.environ, "MUJOCO_GL": "disable"}
+    result = subprocess.run([sys.executable, "-m", "sb3_pride.zoo", *args], cwd=cwd, env=env, capture_output=True, text=True)
+    assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
+    return result.stdout
+
+
+def test_files_cover_the_papers_tasks_and_pride_is_pebble_plus_diffusion():
+    for prefix in ("", "cpu/"):
+        sac, pebble, pride = (entries(prefix + name) for name in ("sac.yml", "pebble.yml", "pride.yml"))
+        assert set(sac) == set(pebble) == set(pride)
+        assert {key.split("/")[1].removesuffix("-v0") for key in pebble} == TASKS
+        for key in pebble:
+            # a fair comparison: identical SAC and PEBBLE settings, PRIDE only adds its own keys
+            assert {k: v for k, v in pride[key].items() if k in pebble[key]} == pebble[key]
+            assert set(pride[key]) - set(pebble[key]) >= {"synthetic_ratio", "diffusion_interval"}
+            assert {k: v for k, v in pebble[key].items() if k not in PEBBLE_KEYS} == sac[key]
+
+
+@pytest.mark.parametrize("name", FILES)
+def test_every_shipped_entry_builds_a_model(name, tmp_path):
+    from rl_zoo3.exp_manager import ExperimentManager
+
+    register()
+    algo = Path(name).stem
+    for env_id in entries(name):
+        manager = ExperimentManager(
+            argparse.Namespace(), algo, env_id, str(tmp_path), config=str(HYPERPARAMS / name), eval_freq=0,
+            hyperparams={"buffer_size": 1000}, verbose=0,
+        )  # fmt: skip
+        model, _ = manager.setup_experiment()
+        assert model.observation_space.dtype == np.float32 and len(model.observation_space.shape) == 1
+        if algo != "sac":
+            expected = entries(name)[env_id]
+            assert (model.max_feedback, model.feedback_interval) == (expected["max_feedback"], expected["feedback_interval"])
+        model.get_env().close()
+
+
+def test_cli_trains_enjoys_and_resumes_pride_on_dm_control(tmp_path):
+    conf = str(HYPERPARAMS / "cpu/pride.yml")
+    zoo("train", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-n", "400", "-f", "logs", "-conf", conf,
+        "--eval-freq", "0", "-params", *TINY, cwd=tmp_path)  # fmt: skip
+    run = tmp_path / "logs/pride/dm_control-walker-walk-v0_1"
+    model = PRIDE.load(run / "dm_control-walker-walk-v0.zip")
+    assert model.num_timesteps == 400 and model.feedback_sessions == 2 and model.diffusion_retrains == 2
+
+    out = zoo("enjoy", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-f", "logs", "--exp-id", "1",
+              "-n", "50", "--no-render", cwd=tmp_path)  # fmt: skip
+    assert "Loading" in out
+
+    zoo("train", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-n", "200", "-f", "logs", "-conf", conf,
+        "--eval-freq", "0", "-i", str(run / "dm_control-walker-walk-v0.zip"), "-params", *TINY, cwd=tmp_path)  # fmt: skip
+    resumed = PRIDE.load(tmp_path / "logs/pride/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
+    assert resumed.num_timesteps == 600 and resumed.feedback_sessions == 3 and resumed.diffusion_retrains == 3
+
+
+def test_cli_trains_pebble_on_metaworld_with_default_hyperparams(tmp_path):
+    # no -conf: the shipped pebble.yml is found for sb3_pride/button-press-v3
+    zoo("train", "--algo", "pebble", "--env", "sb3_pride/button-press-v3", "-n", "600", "-f", "logs",
+              "--eval-freq", "600", "--eval-episodes", "1", "-params", *TINY_PEBBLE, cwd=tmp_path)  # fmt: skip
+    with open(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/sb3_pride-button-press-v3/config.yml") as file:
+        config = dict(yaml.load(file, Loader=yaml.UnsafeLoader))
+    assert config["reward_epochs"] == 10 and config["learning_rate"] == 3e-4 and config["ent_coef"] == "auto_0.1"
+    model = PEBBLE.load(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/sb3_pride-button-press-v3.zip")
+    assert model.num_timesteps == 600 and model.feedback_asked == 30
+    evaluations = np.load(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/evaluations.npz")
+    assert "successes" in evaluations and evaluations["results"].shape == (1, 1)
+
+
+def test_optimize_two_trials_with_sqlite_storage(tmp_path):
+    import optuna
+
+    storage = f"sqlite:///{tmp_path / 'study.db'}"
+    zoo("train", "--algo", "pebble", "--env", "sb3_pride/walker-walk-v0", "-n", "300", "-f", "logs",
+        "-conf", str(HYPERPARAMS / "cpu/pebble.yml"), "-optimize", "--n-trials", "2", "--n-jobs", "1",
+        "--sampler", "random", "--pruner", "none", "--n-evaluations", "1", "--eval-episodes", "1",
+        "--storage", storage, "--study-name", "pebble-walker", "-params", *TINY_PEBBLE, cwd=tmp_path)  # fmt: skip
+    study = optuna.load_study(study_name="pebble-walker", storage=storage)
+    finished = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
+    assert len(finished) == 2 and "feedback_interval" in finished[0].params
