@@ -1,10 +1,10 @@
 """The reward model r̂: an ensemble of MLPs on (s, a) trained on preferences with the Bradley–Terry loss."""
 
+import math
 from typing import Optional
 
 import numpy as np
 import torch as th
-from stable_baselines3.common.torch_layers import create_mlp
 from stable_baselines3.common.utils import get_device
 from torch import nn
 from torch.nn import functional as F
@@ -43,6 +43,36 @@ class PreferenceDataset:
         self.labels = np.concatenate([self.labels, labels.astype(np.float32)])
 
 
+class EnsembleMLP(nn.Module):
+    """
+    ``n_members`` independent MLPs evaluated together with batched matrix products (one call per layer for the
+    whole ensemble instead of one per member and layer). Each layer is initialized like ``nn.Linear``.
+
+    :param n_members: ensemble size
+    :param input_dim: input size
+    :param net_arch: hidden layer sizes
+    :param output_dim: output size
+    """
+
+    def __init__(self, n_members: int, input_dim: int, net_arch: tuple[int, ...], output_dim: int = 1):
+        super().__init__()
+        dims = [input_dim, *net_arch, output_dim]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for fan_in, fan_out in zip(dims[:-1], dims[1:]):
+            bound = 1.0 / math.sqrt(fan_in)  # nn.Linear's default: U(-1/sqrt(fan_in), 1/sqrt(fan_in))
+            self.weights.append(nn.Parameter(th.empty(n_members, fan_in, fan_out).uniform_(-bound, bound)))
+            self.biases.append(nn.Parameter(th.empty(n_members, 1, fan_out).uniform_(-bound, bound)))
+
+    def forward(self, x: th.Tensor) -> th.Tensor:
+        """(members, N, input_dim) -> (members, N, output_dim), hidden layers LeakyReLU, output tanh."""
+        last = len(self.weights) - 1
+        for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
+            x = th.baddbmm(bias, x, weight)
+            x = F.leaky_relu(x) if i < last else th.tanh(x)
+        return x
+
+
 class RewardEnsemble(nn.Module):
     """
     PEBBLE's reward model: ``n_members`` MLPs r̂_m(s, a) with a tanh output (per-step reward in [-1, 1]).
@@ -70,16 +100,16 @@ class RewardEnsemble(nn.Module):
         if n_members < 1:
             raise ValueError(f"ensemble_size must be >= 1, got {n_members}")
         self.input_dim = obs_dim + action_dim
-        self.members = nn.ModuleList(
-            nn.Sequential(*create_mlp(self.input_dim, 1, list(net_arch), nn.LeakyReLU), nn.Tanh()) for _ in range(n_members)
-        )
+        self.n_members = n_members
+        self.members = EnsembleMLP(n_members, self.input_dim, tuple(net_arch))
         self.device = get_device(device)
         self.to(self.device)
         self.optimizer = th.optim.Adam(self.parameters(), lr=learning_rate)
 
     def forward(self, inputs: th.Tensor) -> th.Tensor:
-        """Per-member rewards: (..., input_dim) -> (members, ..., 1)."""
-        return th.stack([member(inputs) for member in self.members])
+        """Per-member rewards of the same inputs: (..., input_dim) -> (members, ..., 1)."""
+        flat = inputs.reshape(1, -1, self.input_dim).expand(self.n_members, -1, -1)
+        return self.members(flat).reshape(self.n_members, *inputs.shape[:-1], 1)
 
     @th.no_grad()
     def predict(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
@@ -114,27 +144,27 @@ class RewardEnsemble(nn.Module):
         rng = rng if rng is not None else np.random.default_rng()
         inputs = th.as_tensor(dataset.inputs, device=self.device)
         labels = th.as_tensor(dataset.labels, device=self.device)
-        n, n_members = len(labels), len(self.members)
+        n = len(labels)
         loss_value, accuracy, epoch = float("nan"), 0.0, 0
         for epoch in range(1, max_epochs + 1):
-            orders = np.stack([rng.permutation(n) for _ in range(n_members)])
+            orders = th.as_tensor(np.stack([rng.permutation(n) for _ in range(self.n_members)]), device=self.device)
             total_loss, correct, counted = 0.0, 0.0, 0.0
             for start in range(0, n, batch_size):
-                loss = th.zeros((), device=self.device)
-                for m, member in enumerate(self.members):
-                    idx = th.as_tensor(orders[m, start : start + batch_size], device=self.device)
-                    returns = member(inputs[idx]).sum(dim=(-2, -1))  # (b, 2): R̂0, R̂1
-                    member_loss = preference_loss(returns, labels[idx])
-                    loss = loss + member_loss
-                    strict = labels[idx] != 0.5
-                    predicted = (returns[:, 1] > returns[:, 0]).float()
-                    correct += float(((predicted == labels[idx]) & strict).sum())
-                    counted += float(strict.sum())
-                    total_loss += member_loss.item() * len(idx)
+                idx = orders[:, start : start + batch_size]  # (members, b): each member its own minibatch
+                batch, batch_labels = inputs[idx], labels[idx]  # (members, b, 2, k, d), (members, b)
+                rewards = self.members(batch.reshape(self.n_members, -1, self.input_dim))
+                returns = rewards.reshape(*batch.shape[:-1]).sum(dim=-1)  # (members, b, 2): R̂0, R̂1
+                # Eq. 2 for each member, summed over members
+                loss = preference_loss(returns, batch_labels) * self.n_members
                 self.optimizer.zero_grad()
                 loss.backward()
                 self.optimizer.step()
-            loss_value = total_loss / (n * n_members)
+                strict = batch_labels != 0.5
+                predicted = (returns[..., 1] > returns[..., 0]).float()
+                correct += float(((predicted == batch_labels) & strict).sum())
+                counted += float(strict.sum())
+                total_loss += loss.item() * idx.shape[1] / self.n_members
+            loss_value = total_loss / n
             accuracy = correct / max(counted, 1.0)
             if accuracy > target_accuracy:
                 break
