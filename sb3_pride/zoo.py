@@ -36,6 +36,22 @@ def hyperparams_dir() -> Path:
     raise FileNotFoundError("sb3_pride's hyperparams/ folder was not found; pass -conf explicitly")
 
 
+#: rl-zoo3 keys that are not constructor arguments
+ZOO_ONLY_KEYS = ("n_timesteps", "env_wrapper", "monitor_kwargs", "normalize", "n_envs", "frame_stack", "callback", "vec_env_wrapper")
+
+
+def model_kwargs(config: Path, env_id: str) -> tuple[int, dict[str, Any]]:
+    """``(n_timesteps, constructor kwargs)`` of a hyperparameter file's entry, for use without rl-zoo3
+    (``policy_kwargs`` strings evaluated as rl-zoo3 does; the ``policy`` key dropped)."""
+    with open(config) as file:
+        entry = dict(yaml.safe_load(file)[env_id])
+    n_timesteps = int(entry["n_timesteps"])
+    kwargs = {key: value for key, value in entry.items() if key not in (*ZOO_ONLY_KEYS, "policy")}
+    if isinstance(kwargs.get("policy_kwargs"), str):
+        kwargs["policy_kwargs"] = eval(kwargs["policy_kwargs"], {"dict": dict})
+    return n_timesteps, kwargs
+
+
 # optuna samplers: PEBBLE's and PRIDE's own knobs (the feedback budget stays fixed: it is the experiment's cost)
 def sample_pebble_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
     """Optuna sampler for PEBBLE: SAC's step size plus the feedback schedule, query selection and pre-training."""

@@ -1,0 +1,148 @@
+"""
+A grid of training runs — algorithm × task × seed × feedback budget × synthetic ratio — each in its own process,
+``--jobs`` at a time, resumable: a run whose ``result.json`` exists is skipped, so a grid can grow across sessions.
+
+    python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride pebble --seeds 0 1 2 3 4 \\
+        --feedback 400 200 --ratios 0.5 --jobs 2 --out benchmarks/results/runs
+
+Settings come from ``hyperparams/<tier>/<algo>.yml`` (``--tier paper`` uses ``hyperparams/<algo>.yml``);
+``--feedback`` overrides ``max_feedback`` and ``--ratios`` overrides PRIDE's ``synthetic_ratio``
+(SAC on the true reward ignores both). Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
+EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv`` and ``result.json``.
+"""
+
+import argparse
+import itertools
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+ROOT = Path(__file__).resolve().parent.parent
+DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk"}
+
+
+def env_id(task: str) -> str:
+    return f"sb3_pride/{task}-v0" if task in DMC_TASKS else f"sb3_pride/{task}"
+
+
+def run_name(spec: dict[str, Any]) -> str:
+    name = f"{spec['algo']}_{spec['task']}_s{spec['seed']}"
+    if spec["algo"] != "sac":
+        name += f"_fb{spec['feedback']}"
+    if spec["algo"] == "pride":
+        name += f"_u{spec['ratio']}"
+    return name
+
+
+def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
+    specs, seen = [], set()
+    # seeds outermost: every cell gets its first seed before any gets its second
+    for seed, task, algo, feedback, ratio in itertools.product(args.seeds, args.tasks, args.algos, args.feedback, args.ratios):
+        spec = dict(algo=algo, task=task, seed=seed, feedback=feedback, ratio=ratio, tier=args.tier,
+                    eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps)  # fmt: skip
+        if run_name(spec) not in seen:  # SAC ignores feedback and ratio; PEBBLE ignores ratio
+            seen.add(run_name(spec))
+            specs.append(spec)
+    return specs
+
+
+def worker(spec: dict[str, Any], folder: Path) -> None:
+    """One run, in this process."""
+    import numpy as np
+    import torch as th
+    from stable_baselines3 import SAC
+    from stable_baselines3.common.callbacks import EvalCallback
+    from stable_baselines3.common.env_util import make_vec_env
+
+    import sb3_pride
+    from sb3_pride.zoo import hyperparams_dir, model_kwargs
+
+    th.set_num_threads(1)
+    config = hyperparams_dir() / ("" if spec["tier"] == "paper" else spec["tier"]) / f"{spec['algo']}.yml"
+    n_timesteps, kwargs = model_kwargs(config, env_id(spec["task"]))
+    if spec["algo"] != "sac":
+        kwargs["max_feedback"] = spec["feedback"]
+    if spec["algo"] == "pride":
+        kwargs["synthetic_ratio"] = spec["ratio"]
+    n_timesteps = spec["timesteps"] or n_timesteps
+    algo = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[spec["algo"]]
+    env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
+    eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
+    model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **kwargs)
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "settings.json").write_text(json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs}, indent=2, default=str))
+    evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
+                              log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
+    start = time.time()
+    model.learn(n_timesteps, callback=evaluation)
+    seconds = time.time() - start
+    data = np.load(folder / "evaluations.npz")
+    returns = data["results"].mean(axis=1)
+    successes = data["successes"].mean(axis=1) if "successes" in data and data["successes"].size else None
+    with open(folder / "curve.csv", "w") as file:
+        file.write("step,true_return,success\n")
+        for i, step in enumerate(data["timesteps"]):
+            file.write(f"{step},{returns[i]:.3f},{'' if successes is None else f'{successes[i]:.3f}'}\n")
+    result = {"seconds": seconds, "final_return": float(returns[-1]), "best_return": float(returns.max()),
+              "final_success": None if successes is None else float(successes[-1]),
+              "feedback_asked": getattr(model, "feedback_asked", None), "feedback_labeled": getattr(model, "feedback_labeled", None)}  # fmt: skip
+    (folder / "result.json").write_text(json.dumps(result, indent=2))
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--algos", nargs="+", default=["pride", "pebble"], choices=["pride", "pebble", "sac"])
+    parser.add_argument("--tasks", nargs="+", default=["walker-walk"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0])
+    parser.add_argument("--feedback", nargs="+", type=int, default=[400], help="max_feedback values")
+    parser.add_argument("--ratios", nargs="+", type=float, default=[0.5], help="PRIDE's synthetic_ratio values")
+    parser.add_argument("--tier", default="cpu", help="'paper' or a folder under hyperparams/ (default: cpu)")
+    parser.add_argument("--timesteps", type=int, default=0, help="override n_timesteps of the YAML (0: keep)")
+    parser.add_argument("--eval-freq", type=int, default=5000)
+    parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--jobs", type=int, default=1, help="runs in parallel (one process each)")
+    parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/runs")
+    parser.add_argument("--worker", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.worker:
+        spec = json.loads(args.worker)
+        worker(spec, args.out / run_name(spec))
+        return
+
+    todo = [spec for spec in grid(args) if not (args.out / run_name(spec) / "result.json").exists()]
+    total = len(grid(args))
+    print(f"{total} runs in the grid, {total - len(todo)} done, {len(todo)} to run, {args.jobs} at a time", flush=True)
+    running: list[tuple[subprocess.Popen, dict, float]] = []
+    finished = total - len(todo)
+    while todo or running:
+        while todo and len(running) < args.jobs:
+            spec = todo.pop(0)
+            (args.out / run_name(spec)).mkdir(parents=True, exist_ok=True)
+            log = open(args.out / run_name(spec) / "log.txt", "w")
+            command = [sys.executable, __file__, "--out", str(args.out), "--worker", json.dumps(spec)]
+            running.append((subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), spec, time.time()))
+            print(f"started {run_name(spec)}", flush=True)
+        time.sleep(2)
+        for process, spec, started in list(running):
+            if process.poll() is None:
+                continue
+            running.remove((process, spec, started))
+            finished += 1
+            result_path = args.out / run_name(spec) / "result.json"
+            if process.returncode == 0 and result_path.exists():
+                result = json.loads(result_path.read_text())
+                success = "" if result["final_success"] is None else f", success {result['final_success']:.2f}"
+                print(f"[{finished}/{total}] {run_name(spec)}: {time.time() - started:.0f} s, "
+                      f"final return {result['final_return']:.1f}{success}", flush=True)  # fmt: skip
+            else:
+                print(f"[{finished}/{total}] {run_name(spec)}: FAILED (rc {process.returncode}), see its log.txt", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,13 @@
+#!/usr/bin/env bash
+# The CPU-tier walker-walk grid of benchmarks/results/README.md, one seed at a time across all cells:
+# PRIDE vs PEBBLE at equal feedback (400), PRIDE at half feedback (200), and the u sweep {0.3, 0.5, 1.0}.
+# Resumable: re-running skips finished runs. JOBS=2 runs two at a time.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+JOBS=${JOBS:-1}
+OUT=${OUT:-benchmarks/results/runs}
+for seed in ${SEEDS:-0 1 2 3 4}; do
+  python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride pebble --feedback 400 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
+  python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 200 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
+  python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 400 --ratios 0.3 1.0 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
+done
