@@ -1,7 +1,7 @@
 """
 A short preference-based training run that shows the whole loop on a CPU:
 
-    python -m sb3_pride --algo pebble --env sb3_pride/walker-walk-v0 --timesteps 20000
+    python -m sb3_pride --algo pride --env sb3_pride/walker-walk-v0 --timesteps 20000
 
 It prints SB3's progress table (feedback, reward-model accuracy and its correlation with the true reward,
 true episode returns) and, at the end, the true return of the deterministic policy over a few episodes.
@@ -15,32 +15,36 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 from stable_baselines3.common.evaluation import evaluate_policy  # noqa: E402
 
-import sb3_pride  # noqa: E402
+import torch as th  # noqa: E402
+import yaml  # noqa: E402
 
-#: small enough for 2 CPU cores: 256 × 2 nets, short pre-training, feedback every 5k steps
-CPU_TIER = dict(
-    learning_starts=1000,
-    unsupervised_steps=2000,
-    feedback_interval=5000,
-    queries_per_session=50,
-    max_feedback=200,
-    batch_size=256,
-    policy_kwargs=dict(net_arch=[256, 256]),
-)
+import sb3_pride  # noqa: E402
+from sb3_pride.zoo import hyperparams_dir, model_kwargs  # noqa: E402
+
+#: the demo is shorter than a CPU-tier run (hyperparams/cpu/): less pre-training, a smaller budget
+DEMO_OVERRIDES = dict(unsupervised_steps=2000, max_feedback=200, queries_per_session=50)
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--algo", choices=["pebble"], default="pebble")
+    parser.add_argument("--algo", choices=["pride", "pebble"], default="pride")
     parser.add_argument("--env", default="sb3_pride/walker-walk-v0")
     parser.add_argument("--timesteps", type=int, default=20_000)
     parser.add_argument("--teacher", default="oracle")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-episodes", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (small networks: 1 is fastest)")
     args = parser.parse_args()
+    th.set_num_threads(args.threads)
 
-    algo = {"pebble": sb3_pride.PEBBLE}[args.algo]
-    model = algo("MlpPolicy", args.env, teacher=args.teacher, seed=args.seed, verbose=1, **CPU_TIER)
+    # the CPU tier's settings for this env (walker-walk's for an env the tier has no entry for)
+    config = hyperparams_dir() / "cpu" / f"{args.algo}.yml"
+    with open(config) as file:
+        key = args.env if args.env in yaml.safe_load(file) else "sb3_pride/walker-walk-v0"
+    _, kwargs = model_kwargs(config, key)
+    kwargs.update(DEMO_OVERRIDES, buffer_size=args.timesteps, teacher=args.teacher)
+    algo = {"pride": sb3_pride.PRIDE, "pebble": sb3_pride.PEBBLE}[args.algo]
+    model = algo("MlpPolicy", args.env, seed=args.seed, verbose=1, **kwargs)
     start = time.time()
     model.learn(args.timesteps, log_interval=5)
     mean, std = evaluate_policy(model, model.get_env(), n_eval_episodes=args.eval_episodes, deterministic=True)

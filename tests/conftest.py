@@ -3,6 +3,9 @@ import os
 os.environ.setdefault("MUJOCO_GL", "disable")  # no display: dm_control must not try to open one
 
 import pytest
+import torch as th
+
+th.set_num_threads(1)  # tiny networks: threads only add contention
 
 #: a PEBBLE small enough for tests: tiny networks, short phases
 TINY = dict(
