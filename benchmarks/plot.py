@@ -1,0 +1,149 @@
+"""
+The paper's figures re-drawn from ``benchmarks/run.py`` results, plus an rliable aggregate.
+
+    python benchmarks/plot.py --runs benchmarks/results/runs --out benchmarks/results/figures
+
+For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 and of SAC
+(the paper's Figures 2–4: equal feedback, and PRIDE at reduced feedback), the synthetic-ratio sweep of PRIDE
+(Figure 5) and, for Meta-World, success rates (Figure 3). The aggregate is the interquartile mean (IQM) of the
+final evaluation with 95% stratified-bootstrap intervals (rliable), scores normalized per task by the best
+configuration's mean. ``summary.md`` lists every configuration with its number of seeds.
+"""
+
+import argparse
+import json
+from collections import defaultdict
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+COLORS = {"pride": "tab:red", "pebble": "tab:blue", "sac": "tab:gray"}
+
+
+def label(settings: dict) -> str:
+    if settings["algo"] == "sac":
+        return "SAC (true reward)"
+    text = f"{settings['algo'].upper()} ({settings['feedback']} queries"
+    return text + (f", u={settings['ratio']})" if settings["algo"] == "pride" else ")")
+
+
+def load_runs(folder: Path) -> dict[tuple[str, str], list[dict]]:
+    """{(task, configuration label): [run, ...]}, each run with its settings and curve arrays."""
+    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for run in sorted(folder.glob("*/result.json")):
+        settings = json.loads((run.parent / "settings.json").read_text())
+        curve = np.genfromtxt(run.parent / "curve.csv", delimiter=",", names=True)
+        curve = np.atleast_1d(curve)
+        groups[(settings["task"], label(settings))].append({"settings": settings, "curve": curve})
+    return groups
+
+
+def stack(runs: list[dict], column: str) -> tuple[np.ndarray, np.ndarray]:
+    """Steps common to all runs and the (runs, steps) values of ``column``."""
+    length = min(len(run["curve"]) for run in runs)
+    steps = runs[0]["curve"]["step"][:length]
+    return steps, np.stack([run["curve"][column][:length] for run in runs])
+
+
+def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, path: Path) -> bool:
+    selected = {
+        name: runs
+        for (t, name), runs in groups.items()
+        if t == task and keep(runs[0]["settings"]) and not np.all(np.isnan(stack(runs, column)[1]))
+    }
+    if not selected:
+        return False
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for i, (name, runs) in enumerate(sorted(selected.items())):
+        steps, values = stack(runs, column)
+        mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
+        settings = runs[0]["settings"]
+        color = COLORS[settings["algo"]] if settings["algo"] != "pride" or settings["ratio"] == 0.5 else f"C{i + 3}"
+        style = "--" if settings["algo"] == "pride" and settings["feedback"] < max(
+            r[0]["settings"]["feedback"] for r in selected.values()
+        ) else "-"
+        ax.plot(steps, mean, style, color=color, label=f"{name}, n={len(runs)}")
+        ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
+    ax.set_xlabel("environment steps")
+    ax.set_ylabel(ylabel)
+    ax.set_title(title)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return True
+
+
+def aggregate(groups, out: Path) -> dict:
+    """IQM of final returns, normalized per task by the best configuration's mean, with 95% bootstrap CIs."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    finals: dict[str, dict[str, np.ndarray]] = defaultdict(dict)
+    for (task, name), runs in groups.items():
+        finals[name][task] = np.array([run["curve"]["true_return"][-1] for run in runs])
+    tasks = sorted({task for task, _ in groups})
+    best = {task: max(np.mean(finals[name][task]) for name in finals if task in finals[name]) for task in tasks}
+    scores = {}
+    for name, per_task in finals.items():
+        if set(per_task) != set(tasks):
+            continue  # rliable needs every task for every configuration
+        n = min(len(v) for v in per_task.values())
+        scores[name] = np.stack([per_task[task][:n] / best[task] for task in tasks], axis=1)  # (runs, tasks)
+    if not scores or min(len(s) for s in scores.values()) < 2:
+        return {}
+    point, intervals = rly.get_interval_estimates(scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=2000)
+    result = {name: {"iqm": float(point[name][0]), "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
+                     "runs": int(len(scores[name]))} for name in scores}  # fmt: skip
+    names = sorted(result, key=lambda name: result[name]["iqm"])
+    fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(names)))
+    for y, name in enumerate(names):
+        low, high = result[name]["ci95"]
+        ax.plot([low, high], [y, y], color="k", linewidth=3, alpha=0.4)
+        ax.plot(result[name]["iqm"], y, "o", color="k")
+    ax.set_yticks(range(len(names)), [f"{name}, n={result[name]['runs']}" for name in names], fontsize=7)
+    ax.set_xlabel("IQM of final return / best configuration's mean (95% bootstrap CI)")
+    fig.tight_layout()
+    fig.savefig(out / "aggregate_iqm.png", dpi=120)
+    plt.close(fig)
+    return result
+
+
+def summary(groups) -> str:
+    lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | final success |",
+             "|---|---|---|---|---|---|"]  # fmt: skip
+    for (task, name), runs in sorted(groups.items()):
+        finals = np.array([run["curve"]["true_return"][-1] for run in runs])
+        bests = np.array([np.max(run["curve"]["true_return"]) for run in runs])
+        success = [run["curve"]["success"][-1] for run in runs]
+        success_text = "" if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f}"
+        lines.append(f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {success_text} |")
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--runs", type=Path, default=Path("benchmarks/results/runs"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/figures"))
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    groups = load_runs(args.runs)
+    for task in sorted({task for task, _ in groups}):
+        plot_curves(groups, task, lambda s: s["algo"] != "pride" or s["ratio"] == 0.5, "true_return", "true return",
+                    f"{task}: PRIDE vs PEBBLE (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
+        ratios = {name for (t, name), runs in groups.items() if t == task and runs[0]["settings"]["algo"] == "pride"}
+        if len(ratios) > 1:
+            plot_curves(groups, task, lambda s: s["algo"] == "pride", "true_return", "true return",
+                        f"{task}: PRIDE's synthetic ratio u", args.out / f"ratio_{task}.png")  # fmt: skip
+        plot_curves(groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png")
+    (args.out / "summary.md").write_text(summary(groups))
+    (args.out / "aggregate.json").write_text(json.dumps(aggregate(groups, args.out), indent=2))
+    print(summary(groups))
+
+
+if __name__ == "__main__":
+    main()
