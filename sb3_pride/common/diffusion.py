@@ -16,6 +16,8 @@ import torch as th
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
+from sb3_pride.common.utils import check_positive_ints
+
 
 class ResidualBlock(nn.Module):
     """h + W·act(h) (SynthER's online configuration: no layer norm)."""
@@ -127,10 +129,9 @@ class ElucidatedDiffusion(nn.Module):
         device: th.device | str = "auto",
     ):
         super().__init__()
-        for name, value in (("dim", dim), ("width", width), ("n_blocks", n_blocks), ("train_steps", train_steps),
-                            ("batch_size", batch_size), ("sample_steps", sample_steps)):  # fmt: skip
-            if value < 1:
-                raise ValueError(f"diffusion {name} must be >= 1, got {value}")
+        check_positive_ints(
+            dim=dim, width=width, n_blocks=n_blocks, train_steps=train_steps, batch_size=batch_size, sample_steps=sample_steps
+        )
         self.dim = dim
         self.architecture = dict(width=width, n_blocks=n_blocks, dim_t=dim_t)
         self.train_steps = train_steps

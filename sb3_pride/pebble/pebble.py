@@ -18,6 +18,7 @@ from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import Teacher, make_teacher
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 
@@ -112,23 +113,19 @@ class PEBBLE(SAC):
         critic_reset_updates: int = 100,
         _init_setup_model: bool = True,
     ):
-        for name, value in (
-            ("max_feedback", max_feedback),
-            ("feedback_interval", feedback_interval),
-            ("queries_per_session", queries_per_session),
-            ("segment_length", segment_length),
-            ("candidates_multiplier", candidates_multiplier),
-            ("max_query_episodes", max_query_episodes),
-            ("entropy_k", entropy_k),
-            ("ensemble_size", ensemble_size),
-            ("reward_batch_size", reward_batch_size),
-            ("reward_epochs", reward_epochs),
-        ):
-            if not isinstance(value, (int, np.integer)) or value <= 0:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        for name, value in (("unsupervised_steps", unsupervised_steps), ("critic_reset_updates", critic_reset_updates)):
-            if not isinstance(value, (int, np.integer)) or value < 0:
-                raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+        check_positive_ints(
+            max_feedback=max_feedback,
+            feedback_interval=feedback_interval,
+            queries_per_session=queries_per_session,
+            segment_length=segment_length,
+            candidates_multiplier=candidates_multiplier,
+            max_query_episodes=max_query_episodes,
+            entropy_k=entropy_k,
+            ensemble_size=ensemble_size,
+            reward_batch_size=reward_batch_size,
+            reward_epochs=reward_epochs,
+        )
+        check_non_negative_ints(unsupervised_steps=unsupervised_steps, critic_reset_updates=critic_reset_updates)
         if query_selection not in QUERY_SELECTIONS:
             raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {query_selection!r}")
         if reward_learning_rate <= 0:
@@ -358,7 +355,7 @@ class PEBBLE(SAC):
         total_timesteps: int,
         callback: MaybeCallback = None,
         log_interval: int = 4,
-        tb_log_name: str = "PEBBLE",
+        tb_log_name: Optional[str] = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfPEBBLE:
@@ -366,7 +363,7 @@ class PEBBLE(SAC):
             total_timesteps=total_timesteps,
             callback=callback,
             log_interval=log_interval,
-            tb_log_name=tb_log_name,
+            tb_log_name=tb_log_name or type(self).__name__,  # "PEBBLE" or "PRIDE"
             reset_num_timesteps=reset_num_timesteps,
             progress_bar=progress_bar,
         )

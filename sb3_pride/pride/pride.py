@@ -1,21 +1,15 @@
-from typing import Any, ClassVar, Optional, TypeVar, Union
+from typing import Any, ClassVar, Optional, Union
 
 import numpy as np
-import torch as th
-from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.noise import ActionNoise
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
 from sb3_pride.common.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import ElucidatedDiffusion
-from sb3_pride.common.teachers import Teacher
+from sb3_pride.common.utils import check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
-
-SelfPRIDE = TypeVar("SelfPRIDE", bound="PRIDE")
-
 
 class PRIDE(PEBBLE):
     """
@@ -31,7 +25,7 @@ class PRIDE(PEBBLE):
     rewards stale until the next generation.) Terminal flags are modelled only if the real buffer holds a true
     termination by the first retrain (never on DMC or Meta-World, whose episodes only time out).
 
-    Parameters not listed here are PEBBLE's (and SAC's); paper-scale diffusion settings (SynthER's: width 1024,
+    Every other parameter is PEBBLE's (and SAC's), with the same defaults; paper-scale diffusion settings (SynthER's: width 1024,
     6 blocks, 100k training steps, 128 sampling steps, 1M samples) are in ``hyperparams/pride.yml``. The defaults
     here are sized for a CPU.
 
@@ -57,46 +51,6 @@ class PRIDE(PEBBLE):
         self,
         policy: Union[str, type[SACPolicy]],
         env: Union[GymEnv, str],
-        learning_rate: Union[float, Schedule] = 3e-4,
-        buffer_size: int = 1_000_000,
-        learning_starts: int = 1000,
-        batch_size: int = 256,
-        tau: float = 0.005,
-        gamma: float = 0.99,
-        train_freq: Union[int, tuple[int, str]] = 1,
-        gradient_steps: int = 1,
-        action_noise: Optional[ActionNoise] = None,
-        replay_buffer_class: Optional[type[ReplayBuffer]] = None,
-        replay_buffer_kwargs: Optional[dict[str, Any]] = None,
-        optimize_memory_usage: bool = False,
-        ent_coef: Union[str, float] = "auto",
-        target_update_interval: int = 1,
-        target_entropy: Union[str, float] = "auto",
-        use_sde: bool = False,
-        sde_sample_freq: int = -1,
-        use_sde_at_warmup: bool = False,
-        stats_window_size: int = 100,
-        tensorboard_log: Optional[str] = None,
-        policy_kwargs: Optional[dict[str, Any]] = None,
-        verbose: int = 0,
-        seed: Optional[int] = None,
-        device: Union[th.device, str] = "auto",
-        teacher: Union[str, Teacher] = "oracle",
-        max_feedback: int = 1000,
-        feedback_interval: int = 20_000,
-        queries_per_session: int = 100,
-        segment_length: int = 50,
-        query_selection: str = "disagreement",
-        candidates_multiplier: int = 10,
-        max_query_episodes: int = 100,
-        unsupervised_steps: int = 9000,
-        entropy_k: int = 5,
-        ensemble_size: int = 3,
-        reward_net_arch: Union[list[int], tuple[int, ...]] = (256, 256, 256),
-        reward_learning_rate: float = 3e-4,
-        reward_batch_size: int = 128,
-        reward_epochs: int = 50,
-        critic_reset_updates: int = 100,
         synthetic_ratio: float = 0.5,
         diffusion_interval: int = 10_000,
         synthetic_samples: int = 20_000,
@@ -107,70 +61,26 @@ class PRIDE(PEBBLE):
         diffusion_sample_steps: int = 32,
         diffusion_warm_start: bool = True,
         diffusion_kwargs: Optional[dict[str, Any]] = None,
+        replay_buffer_kwargs: Optional[dict[str, Any]] = None,
         _init_setup_model: bool = True,
+        **pebble_kwargs: Any,
     ):
         if not 0.0 <= synthetic_ratio <= 1.0:
             raise ValueError(f"synthetic_ratio must be in [0, 1], got {synthetic_ratio}")
-        for name, value in (
-            ("diffusion_interval", diffusion_interval),
-            ("synthetic_samples", synthetic_samples),
-            ("diffusion_width", diffusion_width),
-            ("diffusion_blocks", diffusion_blocks),
-            ("diffusion_train_steps", diffusion_train_steps),
-            ("diffusion_sample_steps", diffusion_sample_steps),
-        ):
-            if not isinstance(value, (int, np.integer)) or value <= 0:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
-        if synthetic_buffer_size is not None and synthetic_buffer_size <= 0:
-            raise ValueError(f"synthetic_buffer_size must be a positive integer, got {synthetic_buffer_size!r}")
+        check_positive_ints(
+            diffusion_interval=diffusion_interval,
+            synthetic_samples=synthetic_samples,
+            diffusion_width=diffusion_width,
+            diffusion_blocks=diffusion_blocks,
+            diffusion_train_steps=diffusion_train_steps,
+            diffusion_sample_steps=diffusion_sample_steps,
+        )
+        if synthetic_buffer_size is not None:
+            check_positive_ints(synthetic_buffer_size=synthetic_buffer_size)
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
-        super().__init__(
-            policy,
-            env,
-            learning_rate=learning_rate,
-            buffer_size=buffer_size,
-            learning_starts=learning_starts,
-            batch_size=batch_size,
-            tau=tau,
-            gamma=gamma,
-            train_freq=train_freq,
-            gradient_steps=gradient_steps,
-            action_noise=action_noise,
-            replay_buffer_class=replay_buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs,
-            optimize_memory_usage=optimize_memory_usage,
-            ent_coef=ent_coef,
-            target_update_interval=target_update_interval,
-            target_entropy=target_entropy,
-            use_sde=use_sde,
-            sde_sample_freq=sde_sample_freq,
-            use_sde_at_warmup=use_sde_at_warmup,
-            stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log,
-            policy_kwargs=policy_kwargs,
-            verbose=verbose,
-            seed=seed,
-            device=device,
-            teacher=teacher,
-            max_feedback=max_feedback,
-            feedback_interval=feedback_interval,
-            queries_per_session=queries_per_session,
-            segment_length=segment_length,
-            query_selection=query_selection,
-            candidates_multiplier=candidates_multiplier,
-            max_query_episodes=max_query_episodes,
-            unsupervised_steps=unsupervised_steps,
-            entropy_k=entropy_k,
-            ensemble_size=ensemble_size,
-            reward_net_arch=reward_net_arch,
-            reward_learning_rate=reward_learning_rate,
-            reward_batch_size=reward_batch_size,
-            reward_epochs=reward_epochs,
-            critic_reset_updates=critic_reset_updates,
-            _init_setup_model=False,
-        )
+        super().__init__(policy, env, replay_buffer_kwargs=replay_buffer_kwargs, _init_setup_model=False, **pebble_kwargs)
         self.synthetic_ratio = synthetic_ratio
         self.diffusion_interval = diffusion_interval
         self.synthetic_samples = synthetic_samples
@@ -280,21 +190,3 @@ class PRIDE(PEBBLE):
 
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "diffusion"]
-
-    def learn(
-        self: SelfPRIDE,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str = "PRIDE",
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfPRIDE:
-        return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name,
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
-        )
