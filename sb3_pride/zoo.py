@@ -12,18 +12,15 @@ modules) and its optuna samplers, then runs rl-zoo3's own entry point. Our hyper
 """
 
 import functools
-import os
 import runpy
 import sys
 from pathlib import Path
 from typing import Any, Optional
 
-os.environ.setdefault("MUJOCO_GL", "disable")
+import yaml
 
-import yaml  # noqa: E402
-
-from sb3_pride.pebble import PEBBLE  # noqa: E402
-from sb3_pride.pride import PRIDE  # noqa: E402
+from sb3_pride.pebble import PEBBLE
+from sb3_pride.pride import PRIDE
 
 ZOO_ALGOS = {"pride": PRIDE, "pebble": PEBBLE}
 
