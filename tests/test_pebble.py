@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 import torch as th
 from stable_baselines3.common.env_util import make_vec_env
+from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_pride import PEBBLE, PreferenceReplayBuffer
 
@@ -117,6 +118,9 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
         PEBBLE("MlpPolicy", "Pendulum-v1", query_selection="random")
     with pytest.raises(ValueError, match="teacher"):
         PEBBLE("MlpPolicy", "Pendulum-v1", teacher="perfect")
+    with pytest.raises(ValueError, match="norm_reward"):
+        PEBBLE("MlpPolicy", VecNormalize(make_vec_env("Pendulum-v1"), norm_reward=True))
+    PEBBLE("MlpPolicy", VecNormalize(make_vec_env("Pendulum-v1"), norm_reward=False), **tiny_kwargs)
 
 
 def test_a_custom_teacher_is_checked(tiny_kwargs):

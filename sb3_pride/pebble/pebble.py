@@ -9,7 +9,7 @@ from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
 from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.vec_env import VecEnv
+from stable_baselines3.common.vec_env import unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
@@ -213,6 +213,12 @@ class PEBBLE(SAC):
             raise ValueError(f"env must have a 1-D Box observation space, got {obs_space}")
         if not isinstance(action_space, spaces.Box):
             raise ValueError(f"env must have a Box (continuous) action space, got {action_space}")
+        normalization = unwrap_vec_normalize(env)
+        if normalization is not None and normalization.norm_reward:
+            raise ValueError(
+                "env is a VecNormalize with norm_reward=True: it would scale r̂ by statistics of the true return "
+                "(a leak, and the wrong scale); use VecNormalize(..., norm_reward=False)"
+            )
         specs = env.get_attr("spec")
         limits = [spec.max_episode_steps for spec in specs if spec is not None and spec.max_episode_steps]
         if limits and min(limits) < segment_length:
