@@ -3,7 +3,7 @@ Where the time goes: wall seconds per 1k env steps split into env stepping, SAC 
 reward learning, relabeling, diffusion training and generation, for SAC, PEBBLE and PRIDE; each algorithm in
 its own process so that its peak memory (max RSS) is its own.
 
-    python benchmarks/profile.py --env sb3_pride/walker-walk-v0 --timesteps 12000 --out benchmarks/results/profile.json
+    python benchmarks/profiler.py --env sb3_pride/walker-walk-v0 --timesteps 12000 --out benchmarks/results/profile.json
 
 Settings are the CPU tier's (``hyperparams/cpu/``) with pre-training shortened to 2k steps so that feedback and
 diffusion happen inside a short run. Buckets nest as they run: "SAC update" excludes the state-entropy reward
@@ -11,20 +11,15 @@ computed while sampling its minibatches; "other" is the rest (callbacks, logging
 transitions).
 """
 
+import argparse
+import json
+import os
+import resource
+import subprocess
 import sys
-from pathlib import Path
-
-# this file is named like the standard library's `profile`, which torch imports: keep its folder off the path
-sys.path = [entry for entry in sys.path if Path(entry or ".").resolve() != Path(__file__).resolve().parent]
-
-import argparse  # noqa: E402
-import json  # noqa: E402
-import os  # noqa: E402
-import resource  # noqa: E402
-import subprocess  # noqa: E402
-import time  # noqa: E402
-from collections import defaultdict  # noqa: E402
-from typing import Any, Callable  # noqa: E402
+import time
+from collections import defaultdict
+from typing import Any, Callable
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
