@@ -8,7 +8,9 @@ A grid of training runs — algorithm × task × seed × feedback budget × synt
 Settings come from ``hyperparams/<tier>/<algo>.yml`` (``--tier paper`` uses ``hyperparams/<algo>.yml``);
 ``--feedback`` overrides ``max_feedback`` and ``--ratios`` overrides PRIDE's ``synthetic_ratio``
 (SAC on the true reward ignores both). Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
-EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv`` and ``result.json``.
+EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv``, ``result.json`` and
+``progress.csv`` (SB3's logger: feedback counts, reward-model accuracy and true-reward correlation, diffusion
+fidelity and timings, SAC losses).
 """
 
 import argparse
@@ -59,6 +61,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.logger import configure
 
     import sb3_pride
     from sb3_pride.zoo import hyperparams_dir, model_kwargs
@@ -76,6 +79,8 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
     model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **kwargs)
     folder.mkdir(parents=True, exist_ok=True)
+    # SB3's logger to progress.csv: reward-model accuracy and true-reward correlation, diffusion fidelity, losses
+    model.set_logger(configure(str(folder), ["csv"]))
     (folder / "settings.json").write_text(json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs}, indent=2, default=str))
     evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
                               log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
