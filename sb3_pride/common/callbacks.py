@@ -93,15 +93,16 @@ class FeedbackCallback(BaseCallback):
             model.preferences, model.reward_epochs, model.reward_batch_size, rng=model.preference_rng
         )
         model.relabel()
+        correlation = model.reward_correlation()
         self.logger.record("reward_model/loss", loss)
         self.logger.record("reward_model/accuracy", accuracy)
         self.logger.record("reward_model/epochs", epochs)
-        self.logger.record("reward_model/true_reward_corr", model.reward_correlation())
+        self.logger.record("reward_model/true_reward_corr", correlation)
         if self.verbose > 0:
             print(
                 f"feedback session {model.feedback_sessions} at step {model.num_timesteps}: "
                 f"{model.feedback_labeled}/{model.feedback_asked} labeled, reward-model accuracy {accuracy:.3f}, "
-                f"corr(r_hat, r_true) {model.reward_correlation():.3f}"
+                f"corr(r_hat, r_true) {correlation:.3f}"
             )
         return True
 
