@@ -32,11 +32,18 @@ def entries(name):
         return yaml.safe_load(file)
 
 
-def zoo(*args, cwd):
-    env = {**os.environ, "MUJOCO_GL": "disable"}
+def zoo(*args, cwd, gl="disable"):
+    env = {**os.environ, "MUJOCO_GL": gl}
     result = subprocess.run([sys.executable, "-m", "sb3_pride.zoo", *args], cwd=cwd, env=env, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return result.stdout
+
+
+def egl_renders() -> bool:
+    """Whether MuJoCo can render off-screen here (record_video needs it)."""
+    code = "import gymnasium as gym, sb3_pride; e = gym.make('sb3_pride/walker-walk-v0', render_mode='rgb_array'); e.reset(); e.render()"
+    env = {**os.environ, "MUJOCO_GL": "egl"}
+    return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True).returncode == 0
 
 
 def test_files_cover_the_papers_tasks_and_pride_is_pebble_plus_diffusion():
@@ -81,6 +88,10 @@ def test_cli_trains_enjoys_and_resumes_pride_on_dm_control(tmp_path):
     out = zoo("enjoy", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-f", "logs", "--exp-id", "1",
               "-n", "50", "--no-render", cwd=tmp_path)  # fmt: skip
     assert "Loading" in out
+    if egl_renders():
+        zoo("record_video", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-f", "logs", "--exp-id", "1",
+            "-n", "20", cwd=tmp_path, gl="egl")  # fmt: skip
+        assert list((run / "videos").glob("*.mp4"))
 
     zoo("train", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-n", "200", "-f", "logs", "-conf", conf,
         "--eval-freq", "0", "-i", str(run / "dm_control-walker-walk-v0.zip"), "-params", *TINY, cwd=tmp_path)  # fmt: skip
