@@ -104,7 +104,6 @@ class PRIDE(PEBBLE):
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        self.replay_buffer.synthetic_ratio = self.synthetic_ratio
         if self.model_terminals is not None:  # loading a model that was retrained: rebuild before its weights load
             self._build_diffusion()
 
