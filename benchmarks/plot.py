@@ -7,7 +7,8 @@ For every task: learning curves (mean ± std over seeds, shaded) of every config
 (the paper's Figures 2–4: equal feedback, and PRIDE at reduced feedback), the synthetic-ratio sweep of PRIDE
 (Figure 5) and, for Meta-World, success rates (Figure 3). The aggregate is the interquartile mean (IQM) of the
 final evaluation with 95% stratified-bootstrap intervals (rliable), scores normalized per task by the best
-configuration's mean. ``summary.md`` lists every configuration with its number of seeds.
+configuration's mean, over the seeds every task of a configuration has (configurations with one seed are left
+out). ``summary.md`` lists every configuration with its number of seeds.
 """
 
 import argparse
@@ -90,11 +91,12 @@ def aggregate(groups, out: Path) -> dict:
     best = {task: max(np.mean(finals[name][task]) for name in finals if task in finals[name]) for task in tasks}
     scores = {}
     for name, per_task in finals.items():
-        if set(per_task) != set(tasks):
-            continue  # rliable needs every task for every configuration
         n = min(len(v) for v in per_task.values())
-        scores[name] = np.stack([per_task[task][:n] / best[task] for task in tasks], axis=1)  # (runs, tasks)
-    if not scores or min(len(s) for s in scores.values()) < 2:
+        if n < 2:
+            continue  # no interval from one seed
+        # (runs, tasks) over the tasks this configuration was run on
+        scores[name] = np.stack([per_task[task][:n] / best[task] for task in sorted(per_task)], axis=1)
+    if not scores:
         return {}
     point, intervals = rly.get_interval_estimates(scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=2000)
     result = {name: {"iqm": float(point[name][0]), "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
@@ -134,7 +136,7 @@ def main() -> None:
     groups = load_runs(args.runs)
     for task in sorted({task for task, _ in groups}):
         plot_curves(groups, task, lambda s: s["algo"] != "pride" or s["ratio"] == 0.5, "true_return", "true return",
-                    f"{task}: PRIDE vs PEBBLE (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
+                    f"{task} (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
         ratios = {name for (t, name), runs in groups.items() if t == task and runs[0]["settings"]["algo"] == "pride"}
         if len(ratios) > 1:
             plot_curves(groups, task, lambda s: s["algo"] == "pride", "true_return", "true return",
