@@ -17,7 +17,7 @@ IntrinsicRewardFn = Callable[[th.Tensor, th.Tensor], th.Tensor]
 
 def relabel_rewards(buffer: ReplayBuffer, reward_fn: RewardFn, batch_size: int = 16_384) -> None:
     """Rewrite every stored reward of ``buffer`` with ``reward_fn(obs, action)``, ``batch_size`` transitions at a time."""
-    n_rows = buffer.buffer_size if buffer.full else buffer.pos
+    n_rows = buffer.size()  # rows in use, each holding n_envs transitions
     flat_obs = buffer.observations[:n_rows].reshape(-1, *buffer.obs_shape)
     flat_actions = buffer.actions[:n_rows].reshape(-1, buffer.action_dim)
     flat_rewards = buffer.rewards[:n_rows].reshape(-1)  # a view: writes land in buffer.rewards
@@ -72,11 +72,6 @@ class PreferenceReplayBuffer(ReplayBuffer):
         state["intrinsic_reward"] = None
         return state
 
-    @property
-    def n_stored(self) -> int:
-        """Number of rows in use (each row holds ``n_envs`` transitions)."""
-        return self.buffer_size if self.full else self.pos
-
     def add(self, obs, next_obs, action, reward, done, infos) -> None:  # type: ignore[override]
         self.true_rewards[self.pos] = np.asarray(reward, dtype=np.float32).reshape(self.n_envs)
         if self.reward_fn is not None:
@@ -94,13 +89,13 @@ class PreferenceReplayBuffer(ReplayBuffer):
         if self.intrinsic_reward is None:
             return samples
         # Unsupervised pre-training: the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
-        all_obs = self._normalize_obs(self.observations[: self.n_stored].reshape(-1, *self.obs_shape), env)
+        all_obs = self._normalize_obs(self.observations[: self.size()].reshape(-1, *self.obs_shape), env)
         rewards = self.intrinsic_reward(samples.observations, self.to_torch(all_obs, copy=False))
         return samples._replace(rewards=rewards.to(samples.rewards.dtype))
 
     def transition_sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``n`` stored transitions drawn uniformly: (observations, actions, true rewards), for diagnostics."""
-        rows = rng.integers(0, self.n_stored, size=n)
+        rows = rng.integers(0, self.size(), size=n)
         cols = rng.integers(0, self.n_envs, size=n)
         return self.observations[rows, cols], self.actions[rows, cols], self.true_rewards[rows, cols]
 
@@ -122,12 +117,12 @@ class SyntheticReplayBuffer(ReplayBuffer):
 
     def extend(self, observations: np.ndarray, actions: np.ndarray, next_observations: np.ndarray, dones: np.ndarray, rewards: np.ndarray) -> None:
         """Append ``len(observations)`` transitions in one vectorized write per array, wrapping around the ring."""
-        n = len(observations)
-        columns = (observations, actions, next_observations, dones, rewards)
-        columns = tuple(column[-self.buffer_size :] for column in columns)
-        rows = (self.pos + np.arange(len(columns[0]))) % self.buffer_size
+        # more than fits: only the last buffer_size are kept
+        columns = tuple(column[-self.buffer_size :] for column in (observations, actions, next_observations, dones, rewards))
+        n = len(columns[0])
+        rows = (self.pos + np.arange(n)) % self.buffer_size
         for target, column in zip((self.observations, self.actions, self.next_observations, self.dones, self.rewards), columns):
-            target[rows, 0] = column.reshape(len(rows), *target.shape[2:])
+            target[rows, 0] = column.reshape(n, *target.shape[2:])
         self.full = self.full or self.pos + n >= self.buffer_size
         self.pos = int((self.pos + n) % self.buffer_size)
 

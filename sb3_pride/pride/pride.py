@@ -150,7 +150,7 @@ class PRIDE(PEBBLE):
     def transition_vectors(self) -> np.ndarray:
         """Every real transition as one vector [s, a, s'] (plus the terminal flag where the env terminates)."""
         buffer = self.real_buffer
-        n = buffer.n_stored
+        n = buffer.size()
         terminals = buffer.dones[:n] * (1.0 - buffer.timeouts[:n])
         if self.model_terminals is None:
             self.model_terminals = bool(terminals.any())
