@@ -206,6 +206,7 @@ class ElucidatedDiffusion(nn.Module):
         schedule = th.optim.lr_scheduler.CosineAnnealingLR(optimizer, T_max=steps)
         if not self.warm_start:
             self.ema.load_state_dict(net.state_dict())
+        tail_steps = max(1, steps // 10)  # the reported loss: mean of the last 10% of steps
         losses = []
         for step in range(steps):
             batch = normalized[th.as_tensor(self.rng.integers(0, len(normalized), self.batch_size), device=self.device_)]
@@ -215,12 +216,12 @@ class ElucidatedDiffusion(nn.Module):
             nn.utils.clip_grad_norm_(net.parameters(), 1.0)
             optimizer.step()
             schedule.step()
-            losses.append(loss.item())
+            if step >= steps - tail_steps:  # .item() waits for the device: only where the value is used
+                losses.append(loss.item())
             if (step + 1) % self.ema_every == 0:
                 self._update_ema(net, n_updates=(step + 1) // self.ema_every)
         self._update_ema(net, n_updates=steps // self.ema_every + 1)
-        tail = losses[-max(1, steps // 10) :]
-        return FitInfo(loss=float(np.mean(tail)), steps=steps, seconds=time.perf_counter() - start)
+        return FitInfo(loss=float(np.mean(losses)), steps=steps, seconds=time.perf_counter() - start)
 
     @th.no_grad()
     def _update_ema(self, net: nn.Module, n_updates: int) -> None:
