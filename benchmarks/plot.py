@@ -8,7 +8,11 @@ For every task: learning curves (mean ± std over seeds, shaded) of every config
 (Figure 5) and, for Meta-World, success rates (Figure 3). The aggregate is the interquartile mean (IQM) of the
 final evaluation with 95% stratified-bootstrap intervals (rliable), scores normalized per task by the best
 configuration's mean, over the seeds every task of a configuration has (configurations with one seed are left
-out). ``summary.md`` lists every configuration with its number of seeds.
+out). The paper's pairwise claims get rliable's probability of improvement P(X > Y) (Mann-Whitney over seeds)
+with a 95% bootstrap interval: every PRIDE configuration of a task against PEBBLE at that task's largest budget.
+``summary.md`` lists every configuration with its number of seeds, those comparisons, and diagnostics read from
+each run's SB3 log (``progress.csv``): the reward model's correlation with the true reward, the critic loss and
+−(actor loss) ≈ Q at the end of training.
 """
 
 import argparse
@@ -39,7 +43,11 @@ def load_runs(folder: Path) -> dict[tuple[str, str], list[dict]]:
         settings = json.loads((run.parent / "settings.json").read_text())
         curve = np.genfromtxt(run.parent / "curve.csv", delimiter=",", names=True)
         curve = np.atleast_1d(curve)
-        groups[(settings["task"], label(settings))].append({"settings": settings, "curve": curve})
+        progress = None
+        if (run.parent / "progress.csv").exists():
+            table = np.genfromtxt(run.parent / "progress.csv", delimiter=",", names=True, deletechars="", dtype=float)
+            progress = {key: np.atleast_1d(table[key]) for key in table.dtype.names}
+        groups[(settings["task"], label(settings))].append({"settings": settings, "curve": curve, "progress": progress})
     return groups
 
 
@@ -115,6 +123,45 @@ def aggregate(groups, out: Path) -> dict:
     return result
 
 
+def improvements(groups) -> dict:
+    """P(PRIDE config > PEBBLE at the task's largest budget) per task, with 95% bootstrap CIs (rliable)."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    pairs = {}
+    for (task, name), runs in groups.items():
+        if runs[0]["settings"]["algo"] != "pride":
+            continue
+        pebble = [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pebble"]
+        if not pebble:
+            continue
+        base_name, base = max(pebble, key=lambda item: item[1][0]["settings"]["feedback"])
+        if min(len(runs), len(base)) < 2:
+            continue
+        finals = [np.array([[run["curve"]["true_return"][-1]] for run in group]) for group in (runs, base)]
+        pairs[f"{task}: {name} > {base_name}"] = finals
+    if not pairs:
+        return {}
+    point, intervals = rly.get_interval_estimates(pairs, metrics.probability_of_improvement, reps=2000)
+    return {key: {"p": float(np.ravel(point[key])[0]), "ci95": [float(np.ravel(bound)[0]) for bound in intervals[key]],
+                  "seeds": [len(pairs[key][0]), len(pairs[key][1])]} for key in pairs}  # fmt: skip
+
+
+def diagnostics(runs: list[dict]) -> dict[str, float]:
+    """Means over seeds of the last logged value of a few SB3 logger keys (runs without progress.csv are skipped)."""
+    keys = {"corr": "reward_model/true_reward_corr", "critic": "train/critic_loss", "actor": "train/actor_loss"}
+    values: dict[str, list[float]] = defaultdict(list)
+    for run in runs:
+        if run["progress"] is None:
+            continue
+        for short, key in keys.items():
+            column = run["progress"].get(key, np.array([]))
+            column = column[~np.isnan(column)]
+            if len(column):
+                values[short].append(float(column[-1]))
+    return {short: float(np.mean(v)) for short, v in values.items()} | {"n": max(map(len, values.values()), default=0)}
+
+
 def summary(groups) -> str:
     lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | final success |",
              "|---|---|---|---|---|---|"]  # fmt: skip
@@ -124,6 +171,17 @@ def summary(groups) -> str:
         success = [run["curve"]["success"][-1] for run in runs]
         success_text = "" if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f}"
         lines.append(f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {success_text} |")
+    lines += ["", "Probability of improvement (final true return, rliable, 95% bootstrap CI):", "",
+              "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
+    for key, value in improvements(groups).items():
+        low, high = value["ci95"]
+        lines.append(f"| {key} | {value['seeds'][0]} vs {value['seeds'][1]} | {value['p']:.2f} | [{low:.2f}, {high:.2f}] |")
+    lines += ["", "At the end of training (means over the runs that have progress.csv):", "",
+              "| task | configuration | runs | corr(r̂, r) | critic loss | −actor loss (≈ Q) |", "|---|---|---|---|---|---|"]  # fmt: skip
+    for (task, name), runs in sorted(groups.items()):
+        d = diagnostics(runs)
+        if d["n"]:
+            lines.append(f"| {task} | {name} | {d['n']} | {d.get('corr', np.nan):.2f} | {d.get('critic', np.nan):.3f} | {-d.get('actor', np.nan):.1f} |")
     return "\n".join(lines) + "\n"
 
 
