@@ -9,7 +9,8 @@ For every task: learning curves (mean ± std over seeds, shaded) of every config
 final evaluation with 95% stratified-bootstrap intervals (rliable), scores normalized per task by the best
 configuration's mean, over the seeds every task of a configuration has (configurations with one seed are left
 out). The paper's pairwise claims get rliable's probability of improvement P(X > Y) (Mann-Whitney over seeds)
-with a 95% bootstrap interval: every PRIDE configuration of a task against PEBBLE at that task's largest budget.
+with a 95% bootstrap interval: every PRIDE configuration of a task against PEBBLE at that task's largest budget,
+and PRIDE at u = 0.5 against the other synthetic ratios.
 ``summary.md`` lists every configuration with its number of seeds, those comparisons, and diagnostics read from
 each run's SB3 log (``progress.csv``): the reward model's correlation with the true reward, the critic loss and
 −(actor loss) ≈ Q at the end of training.
@@ -106,6 +107,7 @@ def aggregate(groups, out: Path) -> dict:
         scores[name] = np.stack([per_task[task][:n] / best[task] for task in sorted(per_task)], axis=1)
     if not scores:
         return {}
+    np.random.seed(0)  # rliable's stratified bootstrap draws from NumPy's global RNG
     point, intervals = rly.get_interval_estimates(scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=2000)
     result = {name: {"iqm": float(point[name][0]), "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
                      "runs": int(len(scores[name]))} for name in scores}  # fmt: skip
@@ -124,27 +126,34 @@ def aggregate(groups, out: Path) -> dict:
 
 
 def improvements(groups) -> dict:
-    """P(PRIDE config > PEBBLE at the task's largest budget) per task, with 95% bootstrap CIs (rliable)."""
+    """
+    P(X > Y) on the final true return, with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
+    PRIDE configuration of a task against PEBBLE at the task's largest budget (Figs. 2 and 4), and PRIDE at u = 0.5
+    against every other u at the same budget (Fig. 5). Pairs where either side has fewer than two seeds are left out.
+    """
     from rliable import library as rly
     from rliable import metrics
 
     pairs = {}
     for (task, name), runs in groups.items():
-        if runs[0]["settings"]["algo"] != "pride":
+        settings = runs[0]["settings"]
+        if settings["algo"] != "pride":
             continue
-        pebble = [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pebble"]
-        if not pebble:
-            continue
-        base_name, base = max(pebble, key=lambda item: item[1][0]["settings"]["feedback"])
-        if min(len(runs), len(base)) < 2:
-            continue
-        finals = [np.array([[run["curve"]["true_return"][-1]] for run in group]) for group in (runs, base)]
-        pairs[f"{task}: {name} > {base_name}"] = finals
+        rivals = [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pebble"]
+        rivals = [max(rivals, key=lambda item: item[1][0]["settings"]["feedback"])] if rivals else []
+        if settings["ratio"] == 0.5:  # Fig. 5: u = 0.5 against the other ratios
+            rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
+                       and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5]  # fmt: skip
+        for rival_name, rival in rivals:
+            if min(len(runs), len(rival)) >= 2:
+                finals = [np.array([[run["curve"]["true_return"][-1]] for run in group]) for group in (runs, rival)]
+                pairs[f"{task}: {name} > {rival_name}"] = finals
     if not pairs:
         return {}
+    np.random.seed(0)  # rliable's stratified bootstrap draws from NumPy's global RNG
     point, intervals = rly.get_interval_estimates(pairs, metrics.probability_of_improvement, reps=2000)
     return {key: {"p": float(np.ravel(point[key])[0]), "ci95": [float(np.ravel(bound)[0]) for bound in intervals[key]],
-                  "seeds": [len(pairs[key][0]), len(pairs[key][1])]} for key in pairs}  # fmt: skip
+                  "seeds": [len(pairs[key][0]), len(pairs[key][1])]} for key in sorted(pairs)}  # fmt: skip
 
 
 def diagnostics(runs: list[dict]) -> dict[str, float]:
@@ -163,14 +172,15 @@ def diagnostics(runs: list[dict]) -> dict[str, float]:
 
 
 def summary(groups) -> str:
-    lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | final success |",
-             "|---|---|---|---|---|---|"]  # fmt: skip
+    lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | area under curve (mean) | final success |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
     for (task, name), runs in sorted(groups.items()):
         finals = np.array([run["curve"]["true_return"][-1] for run in runs])
         bests = np.array([np.max(run["curve"]["true_return"]) for run in runs])
+        areas = np.array([np.mean(run["curve"]["true_return"]) for run in runs])  # mean over evaluations
         success = [run["curve"]["success"][-1] for run in runs]
         success_text = "" if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f}"
-        lines.append(f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {success_text} |")
+        lines.append(f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |")
     lines += ["", "Probability of improvement (final true return, rliable, 95% bootstrap CI):", "",
               "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
     for key, value in improvements(groups).items():
