@@ -172,14 +172,15 @@ def diagnostics(runs: list[dict]) -> dict[str, float]:
 
 
 def summary(groups) -> str:
-    lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | area under curve (mean) | final success |",
-             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | area under curve (mean) | final success | success, area under curve |",
+             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for (task, name), runs in sorted(groups.items()):
         finals = np.array([run["curve"]["true_return"][-1] for run in runs])
         bests = np.array([np.max(run["curve"]["true_return"]) for run in runs])
         areas = np.array([np.mean(run["curve"]["true_return"]) for run in runs])  # mean over evaluations
         success = [run["curve"]["success"][-1] for run in runs]
-        success_text = "" if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f}"
+        success_area = [np.mean(run["curve"]["success"]) for run in runs]
+        success_text = "| " if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f} | {np.nanmean(success_area):.2f}"
         lines.append(f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |")
     lines += ["", "Probability of improvement (final true return, rliable, 95% bootstrap CI):", "",
               "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
