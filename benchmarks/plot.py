@@ -59,6 +59,19 @@ def stack(runs: list[dict], column: str) -> tuple[np.ndarray, np.ndarray]:
     return steps, np.stack([run["curve"][column][:length] for run in runs])
 
 
+def final_returns(runs: list[dict]) -> np.ndarray:
+    """The last evaluation's true return of every run."""
+    return np.array([run["curve"]["true_return"][-1] for run in runs])
+
+
+def bootstrap(score_dict: dict, func) -> tuple[dict, dict]:
+    """rliable's point estimates and 95% stratified-bootstrap intervals, reproducible from run to run."""
+    from rliable import library as rly
+
+    np.random.seed(0)  # rliable's stratified bootstrap draws from NumPy's global RNG
+    return rly.get_interval_estimates(score_dict, func, reps=2000)
+
+
 def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, path: Path) -> bool:
     selected = {
         name: runs
@@ -90,12 +103,11 @@ def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, p
 
 def aggregate(groups, out: Path) -> dict:
     """IQM of final returns, normalized per task by the best configuration's mean, with 95% bootstrap CIs."""
-    from rliable import library as rly
     from rliable import metrics
 
     finals: dict[str, dict[str, np.ndarray]] = defaultdict(dict)
     for (task, name), runs in groups.items():
-        finals[name][task] = np.array([run["curve"]["true_return"][-1] for run in runs])
+        finals[name][task] = final_returns(runs)
     tasks = sorted({task for task, _ in groups})
     best = {task: max(np.mean(finals[name][task]) for name in finals if task in finals[name]) for task in tasks}
     scores = {}
@@ -107,8 +119,7 @@ def aggregate(groups, out: Path) -> dict:
         scores[name] = np.stack([per_task[task][:n] / best[task] for task in sorted(per_task)], axis=1)
     if not scores:
         return {}
-    np.random.seed(0)  # rliable's stratified bootstrap draws from NumPy's global RNG
-    point, intervals = rly.get_interval_estimates(scores, lambda x: np.array([metrics.aggregate_iqm(x)]), reps=2000)
+    point, intervals = bootstrap(scores, lambda x: np.array([metrics.aggregate_iqm(x)]))
     result = {name: {"iqm": float(point[name][0]), "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
                      "runs": int(len(scores[name]))} for name in scores}  # fmt: skip
     names = sorted(result, key=lambda name: result[name]["iqm"])
@@ -131,7 +142,6 @@ def improvements(groups) -> dict:
     PRIDE configuration of a task against PEBBLE at the task's largest budget (Figs. 2 and 4), and PRIDE at u = 0.5
     against every other u at the same budget (Fig. 5). Pairs where either side has fewer than two seeds are left out.
     """
-    from rliable import library as rly
     from rliable import metrics
 
     pairs = {}
@@ -146,12 +156,10 @@ def improvements(groups) -> dict:
                        and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5]  # fmt: skip
         for rival_name, rival in rivals:
             if min(len(runs), len(rival)) >= 2:
-                finals = [np.array([[run["curve"]["true_return"][-1]] for run in group]) for group in (runs, rival)]
-                pairs[f"{task}: {name} > {rival_name}"] = finals
+                pairs[f"{task}: {name} > {rival_name}"] = [final_returns(group)[:, None] for group in (runs, rival)]  # (runs, 1 task)
     if not pairs:
         return {}
-    np.random.seed(0)  # rliable's stratified bootstrap draws from NumPy's global RNG
-    point, intervals = rly.get_interval_estimates(pairs, metrics.probability_of_improvement, reps=2000)
+    point, intervals = bootstrap(pairs, metrics.probability_of_improvement)
     return {key: {"p": float(np.ravel(point[key])[0]), "ci95": [float(np.ravel(bound)[0]) for bound in intervals[key]],
                   "seeds": [len(pairs[key][0]), len(pairs[key][1])]} for key in sorted(pairs)}  # fmt: skip
 
@@ -175,7 +183,7 @@ def summary(groups) -> str:
     lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | area under curve (mean) | final success | success, area under curve |",
              "|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for (task, name), runs in sorted(groups.items()):
-        finals = np.array([run["curve"]["true_return"][-1] for run in runs])
+        finals = final_returns(runs)
         bests = np.array([np.max(run["curve"]["true_return"]) for run in runs])
         areas = np.array([np.mean(run["curve"]["true_return"]) for run in runs])  # mean over evaluations
         success = [run["curve"]["success"][-1] for run in runs]
@@ -211,9 +219,10 @@ def main() -> None:
             plot_curves(groups, task, lambda s: s["algo"] == "pride", "true_return", "true return",
                         f"{task}: PRIDE's synthetic ratio u", args.out / f"ratio_{task}.png")  # fmt: skip
         plot_curves(groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png")
-    (args.out / "summary.md").write_text(summary(groups))
+    text = summary(groups)
+    (args.out / "summary.md").write_text(text)
     (args.out / "aggregate.json").write_text(json.dumps(aggregate(groups, args.out), indent=2))
-    print(summary(groups))
+    print(text)
 
 
 if __name__ == "__main__":
