@@ -66,6 +66,40 @@ def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
     np.testing.assert_allclose(samples.rewards.numpy().ravel(), expected, atol=1e-5)
 
 
+@pytest.mark.parametrize("algo", ["pebble", "pride"])
+def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
+    """The reset updates after the first session (and every later update) use r̂, never r_int (B-Pref's
+    update_after_reset). r_int is made 1000 per step: any of it reaching the reset would show."""
+    from sb3_pride import PRIDE
+
+    if algo == "pride":
+        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_samples=256, diffusion_train_steps=5,
+                      diffusion_sample_steps=2, diffusion_width=16, diffusion_blocks=1, **tiny_kwargs)  # fmt: skip
+    else:
+        model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.state_entropy = lambda obs, all_obs, update_stats=True: th.full((len(obs), 1), 1000.0)
+    sampled: list[tuple[int, float]] = []
+    sample = model.replay_buffer.sample
+
+    def recording_sample(batch_size, env=None):
+        batch = sample(batch_size, env=env)
+        sampled.append((model.feedback_sessions, float(batch.rewards.abs().max())))
+        return batch
+
+    model.replay_buffer.sample = recording_sample
+    model.learn(350)  # the first session at step 300, then 50 more steps
+    pretraining = [reward for sessions, reward in sampled if sessions == 0]
+    after = [reward for sessions, reward in sampled if sessions > 0]
+    assert pretraining and min(pretraining) == 1000.0
+    # 10 reset updates + the session step's own update + 50 later ones, all on r̂ (tanh-bounded)
+    assert len(after) == tiny_kwargs["critic_reset_updates"] + 51
+    assert max(after) <= 1.0
+    with th.no_grad():
+        batch = sample(64)
+        q_values = th.cat(model.critic(batch.observations, batch.actions))
+    assert q_values.abs().max() < 50  # r_int would have pushed Q far above r̂'s scale
+
+
 def test_critic_reset_keeps_actor(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(250)

@@ -29,7 +29,7 @@ class UnsupervisedPretrainingCallback(BaseCallback):
         return True
 
     def _update(self) -> None:
-        self.model.real_buffer.intrinsic_reward = self.model.state_entropy if self.model.in_pretraining else None
+        self.model.update_reward_source()
 
 
 class FeedbackCallback(BaseCallback):
@@ -52,6 +52,9 @@ class FeedbackCallback(BaseCallback):
             model.next_feedback_step = model.num_timesteps + model.segment_length
             return True
         model.next_feedback_step = model.num_timesteps + model.feedback_interval
+        # pre-training ended with this session: from the reset updates on (and this step's own update), the
+        # critic learns from r̂, not r_int (B-Pref's update_after_reset)
+        model.update_reward_source()
         if first:
             model.reset_critic()
             model.train(gradient_steps=model.critic_reset_updates, batch_size=model.batch_size)

@@ -257,6 +257,10 @@ class PEBBLE(SAC):
         """True until the first feedback session: SAC then learns from the state-entropy reward."""
         return self.feedback_sessions == 0
 
+    def update_reward_source(self) -> None:
+        """SAC's reward: r_int (Eq. 3) while pre-training, r̂ (Eq. 1) from the first feedback session on."""
+        self.real_buffer.intrinsic_reward = self.state_entropy if self.in_pretraining else None
+
     def _setup_learn(
         self,
         total_timesteps: int,
