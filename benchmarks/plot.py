@@ -34,7 +34,11 @@ def label(settings: dict) -> str:
     if settings["algo"] == "sac":
         return "SAC (true reward)"
     text = f"{settings['algo'].upper()} ({settings['feedback']} queries"
-    return text + (f", u={settings['ratio']})" if settings["algo"] == "pride" else ")")
+    if settings["algo"] == "pride":
+        text += f", u={settings['ratio']}"
+    if settings.get("tag"):
+        text += f", {settings['tag']}"
+    return text + ")"
 
 
 def load_runs(folder: Path) -> dict[tuple[str, str], list[dict]]:

@@ -39,7 +39,22 @@ def run_name(spec: dict[str, Any]) -> str:
         name += f"_fb{spec['feedback']}"
     if spec["algo"] == "pride":
         name += f"_u{spec['ratio']}"
+    if spec.get("tag"):
+        name += f"_{spec['tag']}"
     return name
+
+
+def parse_overrides(pairs: list[str]) -> dict[str, Any]:
+    """``key=value`` strings (value read as YAML: numbers, booleans, lists) into keyword arguments."""
+    import yaml
+
+    overrides = {}
+    for pair in pairs:
+        key, sep, value = pair.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--set takes key=value, got {pair!r}")
+        overrides[key] = yaml.safe_load(value)
+    return overrides
 
 
 def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
@@ -47,7 +62,8 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     # seeds outermost: every cell gets its first seed before any gets its second
     for seed, task, algo, feedback, ratio in itertools.product(args.seeds, args.tasks, args.algos, args.feedback, args.ratios):
         spec = dict(algo=algo, task=task, seed=seed, feedback=feedback, ratio=ratio, tier=args.tier,
-                    eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps)  # fmt: skip
+                    eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps,
+                    tag=args.tag, overrides=parse_overrides(args.set))  # fmt: skip
         if run_name(spec) not in seen:  # SAC ignores feedback and ratio; PEBBLE ignores ratio
             seen.add(run_name(spec))
             specs.append(spec)
@@ -73,6 +89,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         kwargs["max_feedback"] = spec["feedback"]
     if spec["algo"] == "pride":
         kwargs["synthetic_ratio"] = spec["ratio"]
+    kwargs.update(spec.get("overrides") or {})
     n_timesteps = spec["timesteps"] or n_timesteps
     algo = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[spec["algo"]]
     env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
@@ -111,6 +128,9 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=0, help="override n_timesteps of the YAML (0: keep)")
     parser.add_argument("--eval-freq", type=int, default=5000)
     parser.add_argument("--eval-episodes", type=int, default=5)
+    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
+                        help="override any constructor argument of the YAML, e.g. gradient_steps=2 (applied to every algo)")
+    parser.add_argument("--tag", default="", help="suffix of the run names: tells variants made with --set apart")
     parser.add_argument("--jobs", type=int, default=1, help="runs in parallel (one process each)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/runs")
     parser.add_argument("--worker", help=argparse.SUPPRESS)

@@ -194,6 +194,10 @@ class PEBBLE(SAC):
         self.preferences: Optional[PreferenceDataset] = None
         self.preference_rng = np.random.default_rng(seed)
         self.state_entropy = StateEntropyReward(k=entropy_k)
+        #: train() calls between two real-only critic diagnostics (train/critic_loss_real, train/q_real)
+        self.diagnostic_interval = 100
+        self._train_calls = 0
+        self._diagnostic_rng = np.random.default_rng(None if seed is None else seed + 1)
 
         if _init_setup_model:
             self._setup_model()
@@ -256,6 +260,37 @@ class PEBBLE(SAC):
     def in_pretraining(self) -> bool:
         """True until the first feedback session: SAC then learns from the state-entropy reward."""
         return self.feedback_sessions == 0
+
+    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        super().train(gradient_steps, batch_size)
+        self._train_calls += 1
+        if not self.in_pretraining and self._train_calls % self.diagnostic_interval == 0:
+            critic_loss, q_value = self.real_critic_diagnostics(batch_size)
+            self.logger.record_mean("train/critic_loss_real", critic_loss)
+            self.logger.record_mean("train/q_real", q_value)
+
+    @th.no_grad()
+    def real_critic_diagnostics(self, batch_size: int) -> tuple[float, float]:
+        """
+        SAC's critic loss (r̂ + γ(1 − d)(min Q_target(s', a') − α log π(a'|s'))) and the mean Q(s, a) on a minibatch
+        of real transitions only: PEBBLE's and PRIDE's critics compared like for like, whatever PRIDE mixes in.
+        Draws from its own random generators (NumPy's and torch's global states are restored), so logging it
+        changes no training run.
+        """
+        buffer = self.real_buffer
+        numpy_state = np.random.get_state()  # SB3's _get_samples draws the env index from NumPy's global RNG
+        with th.random.fork_rng(devices=[]):
+            th.manual_seed(int(self._diagnostic_rng.integers(2**62)))
+            rows = self._diagnostic_rng.integers(0, buffer.size(), size=batch_size)
+            data = buffer._get_samples(rows, env=self._vec_normalize_env)
+            next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
+            next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), dim=1, keepdim=True)[0]
+            ent_coef = th.exp(self.log_ent_coef) if self.ent_coef_optimizer is not None else self.ent_coef_tensor
+            target = data.rewards + (1 - data.dones) * self.gamma * (next_q - ent_coef * next_log_prob.reshape(-1, 1))
+            current = self.critic(data.observations, data.actions)
+        np.random.set_state(numpy_state)
+        critic_loss = 0.5 * sum(th.nn.functional.mse_loss(q, target) for q in current)
+        return float(critic_loss), float(th.cat(current, dim=1).mean())
 
     def update_reward_source(self) -> None:
         """SAC's reward: r_int (Eq. 3) while pre-training, r̂ (Eq. 1) from the first feedback session on."""
