@@ -130,3 +130,85 @@ def test_bad_input_names_the_parameter():
     for name in ("diffusion_interval", "synthetic_samples", "diffusion_train_steps"):
         with pytest.raises(ValueError, match=name):
             PRIDE("MlpPolicy", "Pendulum-v1", **{name: 0})
+
+
+#: a dynamics ensemble small enough for tests
+TINY_DYNAMICS = dict(dynamics_kwargs=dict(width=64, train_steps=200))
+
+
+def test_delayed_start_and_ramp_of_u(tiny_kwargs):
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_start=600, synthetic_ramp=300,
+                  **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)  # fmt: skip
+    model.learn(500)  # reward model since 300, but no synthetic data before step 600
+    assert model.diffusion_retrains == 0 and model.replay_buffer.synthetic.size() == 0
+    model.learn(250, reset_num_timesteps=False)
+    assert model.diffusion_retrains == 1 and model.first_generation_step == 600
+    # u ramps from 0 at step 600 to 0.5 at step 900: a quarter of the batch at step 750
+    assert model.current_synthetic_ratio() == pytest.approx(0.25)
+    assert model.replay_buffer.n_synthetic(model.batch_size) == 16
+    model.learn(200, reset_num_timesteps=False)
+    assert model.current_synthetic_ratio() == 0.5
+
+
+def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, diffusion_window=200, **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)
+    model.learn(450)
+    vectors = model.transition_vectors()
+    buffer = model.real_buffer
+    assert vectors.shape == (200, 7)
+    np.testing.assert_array_equal(vectors[:, :3], buffer.observations[250:450, 0])
+    np.testing.assert_array_equal(vectors[:, 4:], buffer.next_observations[250:450, 0])
+
+
+@pytest.mark.parametrize("synthetic_filter", ["dynamics", "reward"])
+def test_keep_quantile_keeps_what_the_filter_trusts(tiny_kwargs, synthetic_filter):
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_keep_quantile=0.5, synthetic_filter=synthetic_filter,
+                  **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)  # fmt: skip
+    model.learn(400)
+    assert model.replay_buffer.synthetic.size() == TINY_DIFFUSION["synthetic_samples"]
+    real = model.transition_vectors()
+    rng = np.random.default_rng(0)
+    vectors = real[rng.integers(0, len(real), size=400)]
+    if synthetic_filter == "dynamics":  # the second half: next states off by five typical steps
+        step_std = (real[:, 4:] - real[:, :3]).std(axis=0)
+        vectors[200:, 4:] += 5 * step_std * rng.choice([-1, 1], size=(200, 3))
+        kept = model.filter_synthetic(vectors, 200)
+        honest = {row.tobytes() for row in vectors[:200]}
+        assert np.mean([row.tobytes() in honest for row in kept]) > 0.9
+    else:  # the half the reward members agree on most
+        doubt = model.reward_model.disagreement(vectors[:, :3], vectors[:, 3:4])
+        kept = model.filter_synthetic(vectors, 200)
+        np.testing.assert_array_equal(kept, vectors[np.argsort(doubt, kind="stable")[:200]])
+        assert model.reward_model.disagreement(kept[:, :3], kept[:, 3:4]).max() <= np.sort(doubt)[200]
+
+
+def test_near_real_generation_of_state_changes(tiny_kwargs):
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, generation="near_real", anchor_noise=0.3, model_state_change=True,
+                  **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)  # fmt: skip
+    real = np.random.default_rng(0).normal(size=(5, 7)).astype(np.float32)
+    encoded = model.encode(real)
+    np.testing.assert_allclose(encoded[:, 4:], real[:, 4:] - real[:, :3])
+    np.testing.assert_allclose(model.decode(encoded), real, atol=1e-6)
+    model.learn(400)
+    synthetic = model.replay_buffer.synthetic
+    assert model.diffusion_retrains == 1 and synthetic.size() == TINY_DIFFUSION["synthetic_samples"]
+    assert np.all(np.isfinite(synthetic.next_observations[: synthetic.size()]))
+
+
+def test_bad_mixing_input_names_the_parameter():
+    bad = dict(
+        generation="from_scratch",
+        anchor_noise=0.0,
+        synthetic_start=-1,
+        synthetic_ramp=1.5,
+        diffusion_window=0,
+        synthetic_keep_quantile=0.0,
+        synthetic_filter="value",
+    )
+    for name, value in bad.items():
+        with pytest.raises(ValueError, match=name):
+            PRIDE("MlpPolicy", "Pendulum-v1", **{name: value})
+    with pytest.raises(ValueError, match="synthetic_keep_quantile"):
+        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=1.01)
+    with pytest.raises(ValueError, match="fidelity_check"):
+        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=0.5, fidelity_check=False)

@@ -113,10 +113,16 @@ class FeedbackCallback(BaseCallback):
 class DiffusionCallback(BaseCallback):
     """
     PRIDE's diffusion phase (Algorithm 1, lines 22–30): every ``diffusion_interval`` steps, once a reward model
-    exists (so synthetic data never carries an untrained reward), fit the diffusion model on the real transitions
-    (s, a, s') and replace the synthetic buffer with ``synthetic_samples`` new ones, rewarded by r̂.
-    Logs the loss, train and generation seconds, samples per second, samples dropped, and the fidelity of the
-    synthetic data: per-dimension gaps of mean and std to the real buffer, in units of the real std.
+    exists (so synthetic data never carries an untrained reward) and from ``synthetic_start`` on, fit the diffusion
+    model on the real transitions (s, a, s'), generate, and replace the synthetic buffer with ``synthetic_samples``
+    new transitions (the ``synthetic_keep_quantile`` share the filter trusts most), rewarded by r̂.
+
+    Logs under ``diffusion/``: the loss, train / generate / fidelity seconds, samples per second, samples dropped;
+    with ``fidelity_check``, ``dynamics_error_ratio`` (synthetic next-state error under a one-step dynamics ensemble
+    fitted on the real transitions, over that of real held-out transitions: 1.0 = as consistent as real data),
+    ``dynamics_error``, ``real_dynamics_error``, ``novelty_ratio`` (nearest-real-neighbour distance over real-to-real:
+    ~0 = copies), ``kept_dynamics_error_ratio`` (after filtering) and the marginal ``mean_gap`` / ``std_gap``
+    (blind to the dynamics: for reference only).
     """
 
     model: "PRIDE"
@@ -127,35 +133,45 @@ class DiffusionCallback(BaseCallback):
             return True
         model.next_diffusion_step = model.num_timesteps + model.diffusion_interval
         real = model.transition_vectors()
-        fit = model.diffusion.fit(real)
+        fit = model.diffusion.fit(model.encode(real))
         start = time.perf_counter()
-        generated = model.diffusion.sample(model.synthetic_samples)
-        kept, dropped = model.store_synthetic(generated)
+        n_draw = int(np.ceil(model.synthetic_samples / model.synthetic_keep_quantile))
+        generated, dropped = model.sanitize(model.generate(real, n_draw))
         generate_seconds = time.perf_counter() - start
-        mean_gap, std_gap = fidelity(real, kept)
+        start = time.perf_counter()
+        fidelity = model.fidelity(real, generated) if model.fidelity_check else None
+        kept = model.filter_synthetic(generated, model.synthetic_samples)
+        fidelity_seconds = time.perf_counter() - start
+        model.store_synthetic(kept)
+        if model.first_generation_step is None:
+            model.first_generation_step = model.num_timesteps
         model.diffusion_retrains += 1
         self.logger.record("diffusion/loss", fit.loss)
         self.logger.record("diffusion/train_seconds", fit.seconds)
         self.logger.record("diffusion/generate_seconds", generate_seconds)
-        self.logger.record("diffusion/samples_per_second", len(generated) / max(generate_seconds, 1e-9))
+        self.logger.record("diffusion/fidelity_seconds", fidelity_seconds)
+        self.logger.record("diffusion/samples_per_second", n_draw / max(generate_seconds, 1e-9))
         self.logger.record("diffusion/samples_dropped", dropped)
-        self.logger.record("diffusion/mean_gap", mean_gap)
-        self.logger.record("diffusion/std_gap", std_gap)
         self.logger.record("diffusion/retrains", model.diffusion_retrains)
+        summary = ""
+        if fidelity is not None:
+            for key, value in vars(fidelity).items():
+                self.logger.record(f"diffusion/{key}", value)
+            if len(kept) < len(generated):
+                kept_fidelity = measure_kept(model, real, kept)
+                self.logger.record("diffusion/kept_dynamics_error_ratio", kept_fidelity)
+            summary = f", dynamics error ratio {fidelity.dynamics_error_ratio:.2f}, novelty {fidelity.novelty_ratio:.2f}"
         if self.verbose > 0:
             print(
                 f"diffusion retrain {model.diffusion_retrains} at step {model.num_timesteps}: loss {fit.loss:.3f}, "
-                f"fit {fit.seconds:.1f} s, {len(kept)} samples in {generate_seconds:.1f} s ({dropped} dropped), "
-                f"mean gap {mean_gap:.3f} std gap {std_gap:.3f}"
+                f"fit {fit.seconds:.1f} s, {len(kept)} samples in {generate_seconds:.1f} s ({dropped} dropped){summary}"
             )
         return True
 
 
-def fidelity(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float]:
-    """Mean over dimensions of |mean_syn − mean_real| / std_real and of |std_syn / std_real − 1|."""
-    if len(synthetic) == 0:
-        return float("nan"), float("nan")
-    real_std = real.std(axis=0) + 1e-8
-    mean_gap = np.abs(synthetic.mean(axis=0) - real.mean(axis=0)) / real_std
-    std_gap = np.abs(synthetic.std(axis=0) / real_std - 1.0)
-    return float(mean_gap.mean()), float(std_gap.mean())
+def measure_kept(model: "PRIDE", real: np.ndarray, kept: np.ndarray) -> float:
+    """Dynamics error ratio of the kept samples under the ensemble already fitted (optimistic under the dynamics filter)."""
+    assert model.dynamics is not None
+    obs, actions, next_obs = model.split(kept)
+    real_error = model.dynamics.errors(*model.split(real[model.dynamics.holdout])).mean()
+    return float(model.dynamics.errors(obs, actions, next_obs).mean() / max(real_error, 1e-12))

@@ -231,37 +231,88 @@ class ElucidatedDiffusion(nn.Module):
             ema_param.lerp_(param, 1.0 - decay)
 
     # sampling ------------------------------------------------------------------------------------------------
-    def noise_levels(self) -> th.Tensor:
-        """Karras schedule σ_0 > … > σ_{N−1}, then σ_N = 0."""
+    def noise_levels(self, sigma_max: Optional[float] = None) -> th.Tensor:
+        """Karras schedule σ_0 > … > σ_{N−1} from ``sigma_max`` (default: the model's σ_max), then σ_N = 0."""
         ramp = th.linspace(0, 1, self.sample_steps, device=self.device_)
         inv_rho = 1.0 / self.rho
-        sigmas = (self.sigma_max**inv_rho + ramp * (self.sigma_min**inv_rho - self.sigma_max**inv_rho)) ** self.rho
+        top = (sigma_max if sigma_max is not None else self.sigma_max) ** inv_rho
+        sigmas = (top + ramp * (self.sigma_min**inv_rho - top)) ** self.rho
         return th.cat([sigmas, th.zeros(1, device=self.device_)])
 
     @th.no_grad()
     def sample(self, n: int) -> np.ndarray:
         """``n`` vectors from the EMA model by the stochastic Heun sampler, in data units."""
+        return self._sample_chunked(n, lambda start, size: self._heun(self._noise((size, self.dim)) * self.sigma_max))
+
+    @th.no_grad()
+    def sample_near(self, anchors: np.ndarray, start_sigma: float) -> np.ndarray:
+        """
+        One new vector per anchor, generated *near* it (SDEdit, Meng et al., 2022): the z-scored anchor is noised to
+        ``start_sigma`` and denoised from there on the Karras schedule that starts at ``start_sigma``. Small
+        ``start_sigma`` stays close to real data; ``start_sigma = σ_max`` forgets the anchor.
+        """
+        if not 0.0 < start_sigma <= self.sigma_max:
+            raise ValueError(f"start_sigma must be in (0, sigma_max={self.sigma_max}], got {start_sigma}")
+        anchors = self._normalize(anchors)
+        return self._sample_chunked(
+            len(anchors),
+            lambda start, size: self._heun(anchors[start : start + size] + start_sigma * self._noise((size, self.dim)), start_sigma),
+        )
+
+    @th.no_grad()
+    def sample_given(self, anchors: np.ndarray, known: np.ndarray) -> np.ndarray:
+        """
+        One new vector per anchor whose ``known`` dimensions are the anchor's and whose other dimensions are generated
+        given them (inpainting by replacement, Lugmayr et al., 2022): after every sampler step the known dimensions
+        are reset to the anchor noised to the current level, so the rest is denoised consistently with them, e.g.
+        s' given a real (s, a).
+        """
+        anchors = self._normalize(anchors)
+        mask = th.zeros(self.dim, dtype=th.bool, device=self.device_)
+        mask[th.as_tensor(np.asarray(known), device=self.device_)] = True
+        return self._sample_chunked(
+            len(anchors),
+            lambda start, size: self._heun(
+                self._noise((size, self.dim)) * self.sigma_max, known=(mask, anchors[start : start + size])
+            ),
+        )
+
+    def _normalize(self, vectors: np.ndarray) -> th.Tensor:
+        vectors = np.asarray(vectors, dtype=np.float32)
+        if vectors.ndim != 2 or vectors.shape[1] != self.dim:
+            raise ValueError(f"anchors must have shape (N, {self.dim}), got {vectors.shape}")
+        return (th.as_tensor(vectors, device=self.device_) - self.mean) / self.std
+
+    def _noise(self, shape: tuple[int, ...]) -> th.Tensor:
+        return th.randn(shape, generator=self.generator, device=self.device_)
+
+    def _sample_chunked(self, n: int, sample_chunk) -> np.ndarray:
         self.ema.eval()
-        chunks = [self._sample_normalized(min(self.sample_batch_size, n - start)) for start in range(0, n, self.sample_batch_size)]
+        chunks = [sample_chunk(start, min(self.sample_batch_size, n - start)) for start in range(0, n, self.sample_batch_size)]
         samples = th.cat(chunks) * self.std + self.mean
         return samples.cpu().numpy()
 
-    def _sample_normalized(self, n: int) -> th.Tensor:
-        sigmas = self.noise_levels()
+    def _heun(
+        self, x: th.Tensor, sigma_max: Optional[float] = None, known: Optional[tuple[th.Tensor, th.Tensor]] = None
+    ) -> th.Tensor:
+        """EDM's stochastic sampler (Karras et al., 2022, Algorithm 2) from x at σ_0, optionally with known dims."""
+        n = len(x)
+        sigmas = self.noise_levels(sigma_max)
         churn = min(self.s_churn / self.sample_steps, math.sqrt(2) - 1)
-        x = sigmas[0] * th.randn((n, self.dim), generator=self.generator, device=self.device_)
         for i in range(self.sample_steps):
             sigma, sigma_next = sigmas[i], sigmas[i + 1]
             # churn: raise the noise level a little by adding fresh noise (only for σ in [S_tmin, S_tmax])
             gamma = churn if self.s_tmin <= float(sigma) <= self.s_tmax else 0.0
             sigma_hat = sigma * (1 + gamma)
             if gamma > 0:
-                fresh = th.randn(x.shape, generator=self.generator, device=self.device_)
-                x = x + (sigma_hat**2 - sigma**2).sqrt() * self.s_noise * fresh
+                x = x + (sigma_hat**2 - sigma**2).sqrt() * self.s_noise * self._noise(x.shape)
             slope = (x - self.denoise(self.ema, x, sigma_hat.expand(n, 1))) / sigma_hat
             x_next = x + (sigma_next - sigma_hat) * slope  # Euler step
             if sigma_next > 0:  # Heun correction, except at the last step
                 slope_next = (x_next - self.denoise(self.ema, x_next, sigma_next.expand(n, 1))) / sigma_next
                 x_next = x + (sigma_next - sigma_hat) * (slope + slope_next) / 2
+            if known is not None:  # the known dimensions: the anchor, noised to the level just reached
+                mask, anchor = known
+                x_next = th.where(mask, anchor + sigma_next * self._noise(x.shape), x_next)
             x = x_next
         return x

@@ -118,6 +118,12 @@ class RewardEnsemble(nn.Module):
         return self(inputs).mean(dim=0).squeeze(-1).cpu().numpy()
 
     @th.no_grad()
+    def disagreement(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The members' standard deviation of r̂(s, a): how unsure the ensemble is, shape (...)."""
+        inputs = th.as_tensor(np.concatenate([observations, actions], axis=-1), dtype=th.float32, device=self.device)
+        return self(inputs).std(dim=0).squeeze(-1).cpu().numpy()
+
+    @th.no_grad()
     def member_segment_returns(self, inputs: np.ndarray, batch_size: int = 256) -> th.Tensor:
         """Each member's return of each segment: (n, 2, k, input_dim) -> (members, n, 2)."""
         chunks = [

@@ -8,8 +8,16 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
 from sb3_pride.common.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import ElucidatedDiffusion
-from sb3_pride.common.utils import check_positive_ints
+from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity
+from sb3_pride.common.queries import chronological_rows
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
+
+#: how synthetic transitions are generated (``generation``)
+GENERATIONS = ("unconditional", "near_real")
+#: what judges which synthetic transitions to keep (``synthetic_filter``)
+SYNTHETIC_FILTERS = ("dynamics", "reward")
+
 
 class PRIDE(PEBBLE):
     """
@@ -42,6 +50,30 @@ class PRIDE(PEBBLE):
         start reaches the same fidelity in fewer steps, which is what makes PRIDE affordable on a CPU)
     :param diffusion_kwargs: any other ``ElucidatedDiffusion`` argument (``dim_t``, ``batch_size``,
         ``learning_rate``, ``sample_batch_size``, ``ema_decay``, ...)
+    :param model_state_change: the diffusion models [s, a, s' − s] instead of the paper's [s, a, s'], so that its
+        loss weighs next-state errors in units of a typical step rather than of the state's whole range
+    :param generation: "unconditional" (the paper, SynthER: from pure noise) or "near_real": each sample starts
+        from a random real transition noised to ``anchor_noise`` and denoised from there (SDEdit)
+    :param anchor_noise: σ (z-scored units) to which real transitions are noised for ``generation="near_real"``;
+        small stays close to the data, large forgets it
+    :param synthetic_start: no synthetic data is generated or mixed before this env step (besides waiting for the
+        first reward model, which always holds)
+    :param synthetic_ramp: env steps over which u grows linearly from 0 to ``synthetic_ratio`` after the first
+        generation (0: at once, as the paper)
+    :param diffusion_window: fit the diffusion (and anchor generation) on the most recent this-many real
+        transitions only (None: all of B_real, as the paper)
+    :param synthetic_keep_quantile: draw ``synthetic_samples / q`` samples and keep the ``q`` share the
+        ``synthetic_filter`` trusts most (1.0: keep all, as the paper)
+    :param synthetic_filter: "dynamics" (the error of the sample's s' under the one-step dynamics ensemble) or
+        "reward" (the reward ensemble's disagreement on r̂(s, a))
+    :param fidelity_check: at every retrain, fit a one-step dynamics ensemble on the real transitions and log how
+        consistent the synthetic next states are (``diffusion/dynamics_error_ratio``) and how novel the samples are
+        (``diffusion/novelty_ratio``); needed by ``synthetic_filter="dynamics"``
+    :param dynamics_kwargs: ``DynamicsEnsemble`` arguments (``n_members``, ``width``, ``train_steps``, ...)
+
+    The paper's recipe: ``model_state_change=False, generation="unconditional", synthetic_start=0,
+    synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0`` with its diffusion sizes
+    (``hyperparams/pride.yml``).
     """
 
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = DualReplayBuffer  # type: ignore[assignment]
@@ -61,6 +93,16 @@ class PRIDE(PEBBLE):
         diffusion_sample_steps: int = 32,
         diffusion_warm_start: bool = True,
         diffusion_kwargs: Optional[dict[str, Any]] = None,
+        model_state_change: bool = False,
+        generation: str = "unconditional",
+        anchor_noise: float = 0.5,
+        synthetic_start: int = 0,
+        synthetic_ramp: int = 0,
+        diffusion_window: Optional[int] = None,
+        synthetic_keep_quantile: float = 1.0,
+        synthetic_filter: str = "dynamics",
+        fidelity_check: bool = True,
+        dynamics_kwargs: Optional[dict[str, Any]] = None,
         replay_buffer_kwargs: Optional[dict[str, Any]] = None,
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
@@ -77,6 +119,19 @@ class PRIDE(PEBBLE):
         )
         if synthetic_buffer_size is not None:
             check_positive_ints(synthetic_buffer_size=synthetic_buffer_size)
+        if diffusion_window is not None:
+            check_positive_ints(diffusion_window=diffusion_window)
+        check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
+        if generation not in GENERATIONS:
+            raise ValueError(f"generation must be one of {GENERATIONS}, got {generation!r}")
+        if not 0.0 < anchor_noise <= 80.0:
+            raise ValueError(f"anchor_noise must be in (0, 80] (σ_max), got {anchor_noise}")
+        if not 0.0 < synthetic_keep_quantile <= 1.0:
+            raise ValueError(f"synthetic_keep_quantile must be in (0, 1], got {synthetic_keep_quantile}")
+        if synthetic_filter not in SYNTHETIC_FILTERS:
+            raise ValueError(f"synthetic_filter must be one of {SYNTHETIC_FILTERS}, got {synthetic_filter!r}")
+        if synthetic_keep_quantile < 1.0 and synthetic_filter == "dynamics" and not fidelity_check:
+            raise ValueError("synthetic_filter='dynamics' needs fidelity_check=True (the dynamics ensemble it uses)")
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
@@ -91,13 +146,25 @@ class PRIDE(PEBBLE):
         self.diffusion_sample_steps = diffusion_sample_steps
         self.diffusion_warm_start = diffusion_warm_start
         self.diffusion_kwargs = dict(diffusion_kwargs or {})
+        self.model_state_change = model_state_change
+        self.generation = generation
+        self.anchor_noise = anchor_noise
+        self.synthetic_start = synthetic_start
+        self.synthetic_ramp = synthetic_ramp
+        self.diffusion_window = diffusion_window
+        self.synthetic_keep_quantile = synthetic_keep_quantile
+        self.synthetic_filter = synthetic_filter
+        self.fidelity_check = fidelity_check
+        self.dynamics_kwargs = dict(dynamics_kwargs or {})
+        self.dynamics: Optional[DynamicsEnsemble] = None
+        self.first_generation_step: Optional[int] = None
         # learning state, saved with the model; the diffusion model is built at the first retrain, when it is
         # known whether terminal flags are part of a transition
         self.model_terminals: Optional[bool] = None
         self.diffusion: Optional[ElucidatedDiffusion] = None
         self.diffusion_retrains = 0
-        # the first retrain comes right after the first reward learning
-        self.next_diffusion_step = self.next_feedback_step
+        # the first retrain comes right after the first reward learning (or at synthetic_start, if later)
+        self.next_diffusion_step = max(self.next_feedback_step, synthetic_start)
 
         if _init_setup_model:
             self._setup_model()
@@ -110,6 +177,8 @@ class PRIDE(PEBBLE):
     def _shift_schedules(self, steps: int) -> None:
         super()._shift_schedules(steps)
         self.next_diffusion_step = max(0, self.next_diffusion_step + steps)
+        if self.first_generation_step is not None:
+            self.first_generation_step += steps
 
     @property
     def real_buffer(self) -> PreferenceReplayBuffer:
@@ -121,10 +190,17 @@ class PRIDE(PEBBLE):
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         # Algorithm 1, lines 34–37: each SAC minibatch holds round(u·B) synthetic and B − round(u·B) real
-        # transitions (DualReplayBuffer.sample); real only until the first generation
-        self.replay_buffer.synthetic_ratio = self.synthetic_ratio
+        # transitions (DualReplayBuffer.sample); real only until the first generation, then u ramps up over
+        # synthetic_ramp steps
+        self.replay_buffer.synthetic_ratio = self.current_synthetic_ratio()
         super().train(gradient_steps, batch_size)
         self.logger.record("train/synthetic_per_batch", self.replay_buffer.n_synthetic(batch_size))
+
+    def current_synthetic_ratio(self) -> float:
+        """u now: ``synthetic_ratio``, ramped linearly from 0 over ``synthetic_ramp`` steps after the first generation."""
+        if self.first_generation_step is None or self.synthetic_ramp == 0:
+            return self.synthetic_ratio
+        return self.synthetic_ratio * min(1.0, (self.num_timesteps - self.first_generation_step) / self.synthetic_ramp)
 
     def relabel(self) -> None:
         """Relabel B_real (Algorithm 1, line 20) and, unlike the paper, B_syn too: r̂ is never stale."""
@@ -148,44 +224,97 @@ class PRIDE(PEBBLE):
         self.diffusion = ElucidatedDiffusion(dim, **{**options, **self.diffusion_kwargs})
 
     def transition_vectors(self) -> np.ndarray:
-        """Every real transition as one vector [s, a, s'] (plus the terminal flag where the env terminates)."""
+        """
+        The real transitions the diffusion learns from, as vectors [s, a, s'] (plus the terminal flag where the env
+        terminates): the most recent ``diffusion_window`` of them, or all of B_real.
+        """
         buffer = self.real_buffer
-        n = buffer.size()
-        terminals = buffer.dones[:n] * (1.0 - buffer.timeouts[:n])
+        rows = chronological_rows(buffer)
+        if self.diffusion_window is not None:
+            rows = rows[-int(np.ceil(self.diffusion_window / buffer.n_envs)) :]
+        terminals = buffer.dones[rows] * (1.0 - buffer.timeouts[rows])
         if self.model_terminals is None:
             self.model_terminals = bool(terminals.any())
             self._build_diffusion()
-        columns = [buffer.observations[:n], buffer.actions[:n], buffer.next_observations[:n]]
+        columns = [buffer.observations[rows], buffer.actions[rows], buffer.next_observations[rows]]
         if self.model_terminals:
             columns.append(terminals[..., None])
         vectors = np.concatenate(columns, axis=-1, dtype=np.float32)
         return vectors.reshape(-1, vectors.shape[-1])
 
-    def store_synthetic(self, generated: np.ndarray) -> tuple[np.ndarray, int]:
-        """
-        Fill B_syn with generated vectors: non-finite ones dropped (and counted), actions clipped to the action
-        bounds, terminal flags rounded at 0.5, rewards r̂(s, a).
+    def _state_change_view(self, vectors: np.ndarray, sign: float) -> np.ndarray:
+        if not self.model_state_change:
+            return vectors
+        obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
+        changed = vectors.copy()
+        changed[:, obs_dim + action_dim : 2 * obs_dim + action_dim] += sign * changed[:, :obs_dim]
+        return changed
 
-        :return: the vectors kept (after clipping), how many were dropped
+    def encode(self, vectors: np.ndarray) -> np.ndarray:
+        """Transition vectors as the diffusion models them: [s, a, s' − s] with ``model_state_change``."""
+        return self._state_change_view(vectors, -1.0)
+
+    def decode(self, vectors: np.ndarray) -> np.ndarray:
+        """The inverse of ``encode``: back to [s, a, s']."""
+        return self._state_change_view(vectors, 1.0)
+
+    def generate(self, real: np.ndarray, n: int) -> np.ndarray:
+        """``n`` synthetic transition vectors [s, a, s'(, terminal)] by ``generation`` from the fitted diffusion."""
+        assert self.diffusion is not None
+        if self.generation == "near_real":
+            anchors = real[self.diffusion.rng.integers(0, len(real), size=n)]
+            return self.decode(self.diffusion.sample_near(self.encode(anchors), self.anchor_noise))
+        return self.decode(self.diffusion.sample(n))
+
+    def sanitize(self, generated: np.ndarray) -> tuple[np.ndarray, int]:
+        """
+        Non-finite vectors dropped (and counted), actions clipped to the action bounds, terminal flags rounded at 0.5.
+
+        :return: the vectors kept, how many were dropped
         """
         finite = np.all(np.isfinite(generated), axis=1)
         kept = generated[finite].copy()
         obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
-        actions = kept[:, obs_dim : obs_dim + action_dim]
-        np.clip(actions, -1.0, 1.0, out=actions)  # the buffer holds actions scaled to [-1, 1]
-        obs, next_obs = kept[:, :obs_dim], kept[:, obs_dim + action_dim : 2 * obs_dim + action_dim]
+        np.clip(kept[:, obs_dim : obs_dim + action_dim], -1.0, 1.0, out=kept[:, obs_dim : obs_dim + action_dim])
         if self.model_terminals:
             kept[:, -1] = (kept[:, -1] > 0.5).astype(np.float32)
-            dones = kept[:, -1]
-        else:
-            dones = np.zeros(len(kept), dtype=np.float32)
-        rewards = self.reward_model.predict(obs, actions)
-        self.replay_buffer.synthetic.replace(obs, actions, next_obs, dones, rewards)
         return kept, int((~finite).sum())
+
+    def filter_synthetic(self, vectors: np.ndarray, n_keep: int) -> np.ndarray:
+        """The ``n_keep`` vectors the ``synthetic_filter`` trusts most (lowest dynamics error or reward disagreement)."""
+        if len(vectors) <= n_keep:
+            return vectors
+        obs, actions, next_obs = self.split(vectors)
+        if self.synthetic_filter == "dynamics":
+            assert self.dynamics is not None
+            doubt = self.dynamics.errors(obs, actions, next_obs)
+        else:
+            doubt = self.reward_model.disagreement(obs, actions)
+        return vectors[np.argsort(doubt, kind="stable")[:n_keep]]
+
+    def split(self, vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, a, s') of transition vectors."""
+        obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
+        return vectors[:, :obs_dim], vectors[:, obs_dim : obs_dim + action_dim], vectors[:, obs_dim + action_dim : 2 * obs_dim + action_dim]
+
+    def store_synthetic(self, vectors: np.ndarray) -> None:
+        """Replace B_syn with sanitized vectors, rewarded by r̂(s, a)."""
+        obs, actions, next_obs = self.split(vectors)
+        dones = vectors[:, -1] if self.model_terminals else np.zeros(len(vectors), dtype=np.float32)
+        self.replay_buffer.synthetic.replace(obs, actions, next_obs, dones, self.reward_model.predict(obs, actions))
+
+    def fidelity(self, real: np.ndarray, synthetic: np.ndarray) -> Fidelity:
+        """Refit the dynamics ensemble on ``real`` and judge ``synthetic`` with it (``measure_fidelity``)."""
+        obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
+        if self.dynamics is None:
+            options = dict(train_steps=500, seed=self.seed, device=self.device)
+            self.dynamics = DynamicsEnsemble(obs_dim, action_dim, **{**options, **self.dynamics_kwargs})
+        return measure_fidelity(self.dynamics, real, synthetic, obs_dim, action_dim)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
         return ([*state_dicts, "diffusion"] if self.diffusion is not None else state_dicts), variables
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "diffusion"]
+        # the dynamics ensemble is a yardstick refit at every retrain: not worth saving
+        return [*super()._excluded_save_params(), "diffusion", "dynamics"]

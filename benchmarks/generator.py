@@ -1,0 +1,180 @@
+"""
+Is the diffusion generator worth its cost on a CPU? Dynamics error of synthetic walker-walk transitions against wall
+time, for the generator's size, training budget, warm starts across retrains, sampler steps, samples per
+generation, and ways of anchoring generation to real data.
+
+    python benchmarks/generator.py --out benchmarks/results/generator.json
+
+Data: ``--transitions`` walker-walk transitions under smooth random actions (a_t = clip(0.9 a_{t-1} + 0.45 ε)),
+the last 20% of each episode's worth kept for nothing: the generator and the yardstick both see all of them.
+Yardstick: one ``DynamicsEnsemble`` (sb3_pride.common.fidelity) fitted once on the real transitions; every
+configuration's samples are judged by it (``dynamics_error_ratio``: error of synthetic s' over the error of real
+held-out s'; 1.0 = as consistent as real data) and by their novelty (nearest real neighbour, over real-to-real).
+Sanity rows: real held-out transitions (ratio 1 by construction), and real transitions with shuffled s' and with s'
+moved by two typical steps (must read far above 1). One torch thread; seconds are for this machine.
+"""
+
+import argparse
+import json
+import os
+import time
+from pathlib import Path
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+import gymnasium as gym  # noqa: E402
+import numpy as np  # noqa: E402
+import torch as th  # noqa: E402
+
+import sb3_pride  # noqa: E402,F401  (registers the environments)
+from sb3_pride.common.diffusion import ElucidatedDiffusion  # noqa: E402
+from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity  # noqa: E402
+
+
+def collect(n: int, seed: int) -> np.ndarray:
+    env = gym.make("sb3_pride/walker-walk-v0")
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    action = np.zeros(env.action_space.shape, dtype=np.float32)
+    rows = []
+    while len(rows) < n:
+        action = np.clip(0.9 * action + 0.45 * rng.normal(size=action.shape), -1, 1).astype(np.float32)
+        next_obs, _, terminated, truncated, _ = env.step(action)
+        rows.append(np.concatenate([obs, action, next_obs]))
+        obs = next_obs
+        if terminated or truncated:
+            obs, _ = env.reset()
+    return np.asarray(rows, dtype=np.float32)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--transitions", type=int, default=20_000)
+    parser.add_argument("--samples", type=int, default=10_000, help="synthetic transitions per configuration")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--representation", choices=["next_state", "delta"], default="next_state",
+                        help="what the generator models: [s, a, s'] (SynthER) or [s, a, s' - s]")
+    parser.add_argument("--only", nargs="*", default=None, help="run only the configurations with these names")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/generator.json"))
+    args = parser.parse_args()
+    th.set_num_threads(1)
+    real = collect(args.transitions, args.seed)
+    obs_dim = (real.shape[1] - 6) // 2
+    action_dim = 6
+    dim = real.shape[1]
+    start = time.perf_counter()
+    yardstick = DynamicsEnsemble(obs_dim, action_dim, train_steps=3000, seed=args.seed)
+    yardstick.fit(real[:, :obs_dim], real[:, obs_dim : obs_dim + action_dim], real[:, obs_dim + action_dim :])
+    yardstick_seconds = time.perf_counter() - start
+    rng = np.random.default_rng(args.seed)
+    rows: list[dict] = []
+
+    def report(name: str, synthetic: np.ndarray, fit_seconds: float, generate_seconds: float, **config) -> None:
+        config = dict(representation=args.representation, **config) if config else config
+        fidelity = measure_fidelity(yardstick, real, synthetic, obs_dim, action_dim, refit=False)
+        row = dict(name=name, **config, fit_seconds=round(fit_seconds, 2), generate_seconds=round(generate_seconds, 2),
+                   seconds_per_10k_samples=round(generate_seconds / max(len(synthetic), 1) * 10_000, 2),
+                   **{k: round(v, 4) for k, v in vars(fidelity).items()})  # fmt: skip
+        rows.append(row)
+        print(json.dumps(row), flush=True)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(dict(transitions=args.transitions, samples=args.samples, seed=args.seed,
+                                            yardstick_fit_seconds=round(yardstick_seconds, 2), rows=rows), indent=1))  # fmt: skip
+
+    def wanted(name: str) -> bool:
+        return args.only is None or name in args.only
+
+    # sanity: the yardstick must pass real data and fail broken data
+    anchors = real[yardstick.holdout]
+    if wanted("real held-out"):
+        report("real held-out", anchors, 0, 0)
+    if wanted("shuffled s'"):
+        shuffled = anchors.copy()
+        shuffled[:, obs_dim + action_dim :] = shuffled[rng.permutation(len(shuffled)), obs_dim + action_dim :]
+        report("shuffled s'", shuffled, 0, 0)
+    if wanted("s' off by 2 steps"):
+        moved = anchors.copy()
+        delta_std = (real[:, obs_dim + action_dim :] - real[:, :obs_dim]).std(axis=0)
+        moved[:, obs_dim + action_dim :] += 2 * delta_std * rng.choice([-1, 1], size=moved[:, :obs_dim].shape)
+        report("s' off by 2 steps", moved, 0, 0)
+    if wanted("copies of the buffer"):
+        report("copies of the buffer", real[yardstick.train_indices[: args.samples]], 0, 0)
+
+    state_changes = args.representation == "delta"
+
+    def encode(vectors: np.ndarray) -> np.ndarray:
+        """[s, a, s'] -> what the generator models: the same, or [s, a, s' − s]."""
+        if not state_changes:
+            return vectors
+        encoded = vectors.copy()
+        encoded[:, obs_dim + action_dim :] -= encoded[:, :obs_dim]
+        return encoded
+
+    def decode(vectors: np.ndarray) -> np.ndarray:
+        if not state_changes:
+            return vectors
+        decoded = vectors.copy()
+        decoded[:, obs_dim + action_dim :] += decoded[:, :obs_dim]
+        return decoded
+
+    def model(width: int, blocks: int, train_steps: int, sample_steps: int, warm_start: bool = False) -> ElucidatedDiffusion:
+        return ElucidatedDiffusion(dim, width=width, n_blocks=blocks, train_steps=train_steps, sample_steps=sample_steps,
+                                   warm_start=warm_start, seed=args.seed)  # fmt: skip
+
+    # unconditional generation (the paper's and SynthER's), size x budget x sampler steps
+    fitted: dict[tuple, tuple[ElucidatedDiffusion, float]] = {}
+    for width, blocks, steps in [(256, 2, 1000), (256, 3, 2000), (256, 3, 5000), (512, 3, 2000), (512, 3, 5000)]:
+        name = f"unconditional {width}x{blocks} {steps} steps"
+        if not any(wanted(f"{name} {n} heun") for n in (8, 16, 32)):
+            continue
+        diffusion = model(width, blocks, steps, 16)
+        fit_seconds = diffusion.fit(encode(real)).seconds
+        fitted[(width, blocks, steps)] = (diffusion, fit_seconds)
+        for sample_steps in (8, 16, 32):
+            if not wanted(f"{name} {sample_steps} heun"):
+                continue
+            diffusion.sample_steps = sample_steps
+            start = time.perf_counter()
+            synthetic = decode(diffusion.sample(args.samples))
+            report(f"{name} {sample_steps} heun", synthetic, fit_seconds, time.perf_counter() - start, mode="unconditional",
+                   width=width, blocks=blocks, train_steps=steps, sample_steps=sample_steps)  # fmt: skip
+
+    # warm starts across retrains: data grows 10k -> 15k -> 20k, 1000 steps each, as PRIDE's retrains do
+    for width, blocks in [(256, 2), (256, 3)]:
+        name = f"warm start {width}x{blocks} 3 x 1000 steps"
+        if not wanted(name):
+            continue
+        diffusion = model(width, blocks, 1000, 16, warm_start=True)
+        fit_seconds = 0.0
+        for n in (len(real) // 2, 3 * len(real) // 4, len(real)):
+            fit_seconds = diffusion.fit(encode(real[:n])).seconds  # the cost of one retrain: the last one
+        start = time.perf_counter()
+        synthetic = decode(diffusion.sample(args.samples))
+        report(name, synthetic, fit_seconds, time.perf_counter() - start, mode="unconditional, warm", width=width,
+               blocks=blocks, train_steps=1000, sample_steps=16)  # fmt: skip
+
+    # anchored to real data: SDEdit from real transitions, and s' inpainted given a real (s, a)
+    for (width, blocks, steps), (diffusion, fit_seconds) in fitted.items():
+        if (width, blocks, steps) not in [(256, 2, 1000), (256, 3, 2000), (512, 3, 5000)]:
+            continue
+        anchor_rows = real[rng.integers(0, len(real), size=args.samples)]
+        for start_sigma in (0.25, 0.5, 1.0, 2.0):
+            name = f"near real (SDEdit sigma {start_sigma}) {width}x{blocks} {steps} steps"
+            if not wanted(name):
+                continue
+            diffusion.sample_steps = 8
+            start = time.perf_counter()
+            synthetic = decode(diffusion.sample_near(encode(anchor_rows), start_sigma))
+            report(name, synthetic, fit_seconds, time.perf_counter() - start, mode="sdedit", start_sigma=start_sigma,
+                   width=width, blocks=blocks, train_steps=steps, sample_steps=8)  # fmt: skip
+        name = f"s' given real (s, a) {width}x{blocks} {steps} steps"
+        if wanted(name):
+            diffusion.sample_steps = 16
+            start = time.perf_counter()
+            synthetic = decode(diffusion.sample_given(encode(anchor_rows), np.arange(obs_dim + action_dim)))
+            report(name, synthetic, fit_seconds, time.perf_counter() - start, mode="inpaint s'", width=width, blocks=blocks,
+                   train_steps=steps, sample_steps=16)  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()

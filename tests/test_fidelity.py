@@ -1,0 +1,86 @@
+"""The fidelity measures must pass real data and fail broken data: a number that cannot fail tells nobody anything."""
+
+import gymnasium as gym
+import numpy as np
+import pandas as pd
+import pytest
+from stable_baselines3.common.logger import configure
+
+from sb3_pride import PRIDE
+from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity
+from tests.test_pride import TINY_DIFFUSION
+
+#: a dynamics ensemble small enough for tests
+TINY_DYNAMICS = dict(width=64, train_steps=300)
+
+
+def pendulum_transitions(n: int, seed: int) -> np.ndarray:
+    """[s, a, s'] of Pendulum under smooth random actions."""
+    env = gym.make("Pendulum-v1")
+    rng = np.random.default_rng(seed)
+    obs, _ = env.reset(seed=seed)
+    action, rows = np.zeros(1, dtype=np.float32), []
+    while len(rows) < n:
+        action = np.clip(0.9 * action + 0.5 * rng.normal(size=1), -1, 1).astype(np.float32)
+        next_obs, _, terminated, truncated, _ = env.step(2 * action)
+        rows.append(np.concatenate([obs, action, next_obs]))
+        obs = next_obs if not (terminated or truncated) else env.reset()[0]
+    return np.asarray(rows, dtype=np.float32)
+
+
+def corrupt_next_states(vectors: np.ndarray, steps: float, rng: np.random.Generator) -> np.ndarray:
+    """s' moved by ``steps`` typical steps (std of s' − s) in a random direction per dimension."""
+    corrupted = vectors.copy()
+    step_std = (vectors[:, 4:] - vectors[:, :3]).std(axis=0)
+    corrupted[:, 4:] += steps * step_std * rng.choice([-1, 1], size=(len(vectors), 3))
+    return corrupted
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    real = pendulum_transitions(3000, seed=0)
+    dynamics = DynamicsEnsemble(3, 1, seed=0, **TINY_DYNAMICS)
+    measure_fidelity(dynamics, real, real[:10], 3, 1)  # fits the ensemble
+    return real, dynamics
+
+
+def test_real_passes_and_corrupted_next_states_fail(fitted):
+    real, dynamics = fitted
+    rng = np.random.default_rng(1)
+    fresh = pendulum_transitions(1000, seed=1)
+    honest = measure_fidelity(dynamics, real, fresh, 3, 1, refit=False)
+    corrupted = measure_fidelity(dynamics, real, corrupt_next_states(fresh, 2.0, rng), 3, 1, refit=False)
+    assert honest.dynamics_error_ratio < 1.5
+    assert corrupted.dynamics_error_ratio > 2.5
+    # the marginal gaps barely move: they cannot see wrong dynamics (why they are not the verdict)
+    assert corrupted.mean_gap < 0.2
+
+
+def test_copies_of_the_buffer_are_not_novel(fitted):
+    real, dynamics = fitted
+    copies = real[dynamics.train_indices[:500]]
+    fresh = pendulum_transitions(500, seed=2)
+    assert measure_fidelity(dynamics, real, copies, 3, 1, refit=False).novelty_ratio < 0.05
+    assert measure_fidelity(dynamics, real, fresh, 3, 1, refit=False).novelty_ratio > 0.5
+
+
+def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_path):
+    """Every retrain logs the ratio; a generator whose s' are off by two typical steps reads far above 1."""
+    ratios = {}
+    for name, steps in (("faithful", 0.0), ("corrupted", 2.0)):
+        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, dynamics_kwargs=TINY_DYNAMICS, **tiny_kwargs, **TINY_DIFFUSION)
+        rng = np.random.default_rng(0)
+
+        def generator(real, n, steps=steps, rng=rng):  # real transitions, next states corrupted by `steps`
+            return corrupt_next_states(real[rng.integers(0, len(real), size=n)], steps, rng)
+
+        model.generate = generator
+        model.set_logger(configure(str(tmp_path / name), ["csv"]))
+        model.learn(800, log_interval=1)  # retrains at 300 and 600
+        progress = pd.read_csv(tmp_path / name / "progress.csv")
+        logged = progress["diffusion/dynamics_error_ratio"].dropna()
+        assert model.diffusion_retrains == 2 and len(logged) == 2
+        ratios[name] = logged.to_numpy()
+    # real transitions drawn back (copies) are at most as inconsistent as held-out real ones
+    assert np.all(ratios["faithful"] < 1.5)
+    assert np.all(ratios["corrupted"] > 2.5)
