@@ -3,7 +3,11 @@ Is the diffusion generator worth its cost on a CPU? Dynamics error of synthetic 
 time, for the generator's size, training budget, warm starts across retrains, sampler steps, samples per
 generation, and ways of anchoring generation to real data.
 
-    python benchmarks/generator.py --out benchmarks/results/generator.json
+    python benchmarks/generator.py --representation next_state --out benchmarks/results/generator_next_state.json
+    python benchmarks/generator.py --representation delta --out benchmarks/results/generator_delta.json
+    python benchmarks/generator.py --table benchmarks/results/generator_*.json   # the markdown table
+
+Resumable: configurations already in ``--out`` are skipped (``--only NAME ...`` measures just those).
 
 Data: ``--transitions`` walker-walk transitions under smooth random actions (a_t = clip(0.9 a_{t-1} + 0.45 ε)),
 the last 20% of each episode's worth kept for nothing: the generator and the yardstick both see all of them.
@@ -47,6 +51,18 @@ def collect(n: int, seed: int) -> np.ndarray:
     return np.asarray(rows, dtype=np.float32)
 
 
+def table(paths: list[Path]) -> str:
+    """One markdown row per configuration: what it models, dynamics error ratio, novelty, seconds."""
+    lines = ["| generator | models | fit s | s per 10k samples | dynamics error | ratio to real | novelty |",
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    for path in paths:
+        for row in json.loads(path.read_text())["rows"]:
+            models = {"next_state": "[s, a, s']", "delta": "[s, a, s' − s]"}.get(row.get("representation", ""), "—")
+            lines.append(f"| {row['name']} | {models} | {row['fit_seconds']:.1f} | {row['seconds_per_10k_samples']:.2f} | "
+                         f"{row['dynamics_error']:.2f} | {row['dynamics_error_ratio']:.2f} | {row['novelty_ratio']:.2f} |")  # fmt: skip
+    return "\n".join(lines)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--transitions", type=int, default=20_000)
@@ -55,8 +71,12 @@ def main() -> None:
     parser.add_argument("--representation", choices=["next_state", "delta"], default="next_state",
                         help="what the generator models: [s, a, s'] (SynthER) or [s, a, s' - s]")
     parser.add_argument("--only", nargs="*", default=None, help="run only the configurations with these names")
-    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/generator.json"))
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/generator_next_state.json"))
+    parser.add_argument("--table", nargs="+", type=Path, help="print the markdown table of these result files and exit")
     args = parser.parse_args()
+    if args.table:
+        print(table(args.table))
+        return
     th.set_num_threads(1)
     real = collect(args.transitions, args.seed)
     obs_dim = (real.shape[1] - 6) // 2
@@ -67,7 +87,9 @@ def main() -> None:
     yardstick.fit(real[:, :obs_dim], real[:, obs_dim : obs_dim + action_dim], real[:, obs_dim + action_dim :])
     yardstick_seconds = time.perf_counter() - start
     rng = np.random.default_rng(args.seed)
-    rows: list[dict] = []
+    # resumable: rows already in --out are kept and not measured again
+    rows: list[dict] = json.loads(args.out.read_text())["rows"] if args.out.exists() else []
+    done = {row["name"] for row in rows}
 
     def report(name: str, synthetic: np.ndarray, fit_seconds: float, generate_seconds: float, **config) -> None:
         config = dict(representation=args.representation, **config) if config else config
@@ -82,7 +104,7 @@ def main() -> None:
                                             yardstick_fit_seconds=round(yardstick_seconds, 2), rows=rows), indent=1))  # fmt: skip
 
     def wanted(name: str) -> bool:
-        return args.only is None or name in args.only
+        return name not in done and (args.only is None or name in args.only)
 
     # sanity: the yardstick must pass real data and fail broken data
     anchors = real[yardstick.holdout]
@@ -125,7 +147,9 @@ def main() -> None:
     fitted: dict[tuple, tuple[ElucidatedDiffusion, float]] = {}
     for width, blocks, steps in [(256, 2, 1000), (256, 3, 2000), (256, 3, 5000), (512, 3, 2000), (512, 3, 5000)]:
         name = f"unconditional {width}x{blocks} {steps} steps"
-        if not any(wanted(f"{name} {n} heun") for n in (8, 16, 32)):
+        anchored = [f"near real (SDEdit sigma {sigma}) {width}x{blocks} {steps} steps" for sigma in (0.25, 0.5, 1.0, 2.0)]
+        anchored.append(f"s' given real (s, a) {width}x{blocks} {steps} steps")
+        if not any(wanted(other) for other in [f"{name} {n} heun" for n in (8, 16, 32)] + anchored):
             continue
         diffusion = model(width, blocks, steps, 16)
         fit_seconds = diffusion.fit(encode(real)).seconds
@@ -155,8 +179,6 @@ def main() -> None:
 
     # anchored to real data: SDEdit from real transitions, and s' inpainted given a real (s, a)
     for (width, blocks, steps), (diffusion, fit_seconds) in fitted.items():
-        if (width, blocks, steps) not in [(256, 2, 1000), (256, 3, 2000), (512, 3, 5000)]:
-            continue
         anchor_rows = real[rng.integers(0, len(real), size=args.samples)]
         for start_sigma in (0.25, 0.5, 1.0, 2.0):
             name = f"near real (SDEdit sigma {start_sigma}) {width}x{blocks} {steps} steps"

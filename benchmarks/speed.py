@@ -3,7 +3,7 @@ Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identica
 
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
 
-The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
+PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults). The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
 gives each one's median time, its ratio to SAC's and to PEBBLE's, and where the extra time goes: feedback
 sessions (reward learning, relabeling, critic reset), diffusion training, generation (samples per second).
 """
@@ -54,6 +54,7 @@ class TimedDiffusion(DiffusionCallback):
             values = self.logger.name_to_value
             TIMES["diffusion_train_seconds"] += values["diffusion/train_seconds"]
             TIMES["generate_seconds"] += values["diffusion/generate_seconds"]
+            TIMES["fidelity_seconds"] += values["diffusion/fidelity_seconds"]
             TIMES["generated"] += self.model.synthetic_samples
         return result
 
@@ -103,7 +104,8 @@ def main() -> None:
         if median.get("generated"):
             line += (
                 f", diffusion training {median['diffusion_train_seconds']:.1f} s, generation "
-                f"{median['generate_seconds']:.1f} s ({median['generated'] / median['generate_seconds']:.0f} samples/s)"
+                f"{median['generate_seconds']:.1f} s ({median['generated'] / median['generate_seconds']:.0f} samples/s), "
+                f"fidelity check and filter {median['fidelity_seconds']:.1f} s"
             )
         print(line)
     if args.out:
