@@ -169,17 +169,23 @@ def improvements(groups) -> dict:
 
 
 def diagnostics(runs: list[dict]) -> dict[str, float]:
-    """Means over seeds of the last logged value of a few SB3 logger keys (runs without progress.csv are skipped)."""
-    keys = {"corr": "reward_model/true_reward_corr", "critic": "train/critic_loss", "actor": "train/actor_loss"}
+    """
+    Means over seeds of the last logged value of a few SB3 logger keys, and of the mean over all retrains of the
+    synthetic data's fidelity (runs without progress.csv, or without the key, are skipped).
+    """
+    last = {"corr": "reward_model/true_reward_corr", "critic": "train/critic_loss", "actor": "train/actor_loss",
+            "critic_real": "train/critic_loss_real", "q_real": "train/q_real"}  # fmt: skip
+    over_retrains = {"dynamics": "diffusion/dynamics_error_ratio", "kept": "diffusion/kept_dynamics_error_ratio",
+                     "novelty": "diffusion/novelty_ratio"}  # fmt: skip
     values: dict[str, list[float]] = defaultdict(list)
     for run in runs:
         if run["progress"] is None:
             continue
-        for short, key in keys.items():
+        for short, key in [*last.items(), *over_retrains.items()]:
             column = run["progress"].get(key, np.array([]))
             column = column[~np.isnan(column)]
             if len(column):
-                values[short].append(float(column[-1]))
+                values[short].append(float(column[-1] if short in last else column.mean()))
     return {short: float(np.mean(v)) for short, v in values.items()} | {"n": max(map(len, values.values()), default=0)}
 
 
@@ -200,11 +206,19 @@ def summary(groups) -> str:
         low, high = value["ci95"]
         lines.append(f"| {key} | {value['seeds'][0]} vs {value['seeds'][1]} | {value['p']:.2f} | [{low:.2f}, {high:.2f}] |")
     lines += ["", "At the end of training (means over the runs that have progress.csv):", "",
-              "| task | configuration | runs | corr(r̂, r) | critic loss | −actor loss (≈ Q) |", "|---|---|---|---|---|---|"]  # fmt: skip
+              "| task | configuration | runs | corr(r̂, r) | critic loss | critic loss, real batch | Q, real batch | −actor loss (≈ Q) "
+              "| dynamics error ratio (all retrains) | kept after filter | novelty |",
+              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+
+    def cell(d: dict, key: str, digits: int, sign: float = 1.0) -> str:
+        return f"{sign * d[key]:.{digits}f}" if key in d else ""
+
     for (task, name), runs in sorted(groups.items()):
         d = diagnostics(runs)
         if d["n"]:
-            lines.append(f"| {task} | {name} | {d['n']} | {d.get('corr', np.nan):.2f} | {d.get('critic', np.nan):.3f} | {-d.get('actor', np.nan):.1f} |")
+            lines.append(f"| {task} | {name} | {d['n']} | {cell(d, 'corr', 2)} | {cell(d, 'critic', 3)} | {cell(d, 'critic_real', 3)} | "
+                         f"{cell(d, 'q_real', 1)} | {cell(d, 'actor', 1, -1.0)} | {cell(d, 'dynamics', 2)} | {cell(d, 'kept', 2)} | "
+                         f"{cell(d, 'novelty', 2)} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 
