@@ -9,8 +9,8 @@ generation, and ways of anchoring generation to real data.
 
 Resumable: configurations already in ``--out`` are skipped (``--only NAME ...`` measures just those).
 
-Data: ``--transitions`` walker-walk transitions under smooth random actions (a_t = clip(0.9 a_{t-1} + 0.45 ε)),
-the last 20% of each episode's worth kept for nothing: the generator and the yardstick both see all of them.
+Data: ``--transitions`` walker-walk transitions under smooth random actions (a_t = clip(0.9 a_{t-1} + 0.45 ε)).
+The generators train on all of them; the yardstick holds out a random 20% to measure real data's own error.
 Yardstick: one ``DynamicsEnsemble`` (sb3_pride.common.fidelity) fitted once on the real transitions; every
 configuration's samples are judged by it (``dynamics_error_ratio``: error of synthetic s' over the error of real
 held-out s'; 1.0 = as consistent as real data) and by their novelty (nearest real neighbour, over real-to-real).

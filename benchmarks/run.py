@@ -135,6 +135,8 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/runs")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
     args = parser.parse_args()
+    if args.set and not args.tag:
+        parser.error("--set needs --tag: a variant must not share its run names with the YAML's configuration")
     if args.worker:
         spec = json.loads(args.worker)
         worker(spec, args.out / run_name(spec))

@@ -248,7 +248,8 @@ class ElucidatedDiffusion(nn.Module):
     def sample_near(self, anchors: np.ndarray, start_sigma: float) -> np.ndarray:
         """
         One new vector per anchor, generated *near* it (SDEdit, Meng et al., 2022): the z-scored anchor is noised to
-        ``start_sigma`` and denoised from there on the Karras schedule that starts at ``start_sigma``. Small
+        ``start_sigma`` and denoised from there on the Karras schedule that starts at ``start_sigma`` (with the
+        sampler's churn, the first step briefly raises the level to ≈ (1 + min(S_churn/N, √2 − 1))·``start_sigma``). Small
         ``start_sigma`` stays close to real data; ``start_sigma = σ_max`` forgets the anchor.
         """
         if not 0.0 < start_sigma <= self.sigma_max:

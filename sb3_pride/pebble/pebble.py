@@ -279,7 +279,9 @@ class PEBBLE(SAC):
         """
         buffer = self.real_buffer
         numpy_state = np.random.get_state()  # SB3's _get_samples draws the env index from NumPy's global RNG
-        with th.random.fork_rng(devices=[]):
+        # manual_seed reseeds every CUDA generator too: fork (and restore) the one this model draws from
+        devices = [self.device] if self.device.type == "cuda" else []
+        with th.random.fork_rng(devices=devices):
             th.manual_seed(int(self._diagnostic_rng.integers(2**62)))
             rows = self._diagnostic_rng.integers(0, buffer.size(), size=batch_size)
             data = buffer._get_samples(rows, env=self._vec_normalize_env)

@@ -234,7 +234,7 @@ class PRIDE(PEBBLE):
         """
         buffer = self.real_buffer
         rows = chronological_rows(buffer)
-        if self.diffusion_window is not None:
+        if self.diffusion_window is not None:  # whole rows first (n_envs transitions each), then exactly the window
             rows = rows[-int(np.ceil(self.diffusion_window / buffer.n_envs)) :]
         terminals = buffer.dones[rows] * (1.0 - buffer.timeouts[rows])
         if self.model_terminals is None:
@@ -244,7 +244,8 @@ class PRIDE(PEBBLE):
         if self.model_terminals:
             columns.append(terminals[..., None])
         vectors = np.concatenate(columns, axis=-1, dtype=np.float32)
-        return vectors.reshape(-1, vectors.shape[-1])
+        vectors = vectors.reshape(-1, vectors.shape[-1])
+        return vectors if self.diffusion_window is None else vectors[-self.diffusion_window :]
 
     def _state_change_view(self, vectors: np.ndarray, sign: float) -> np.ndarray:
         if not self.model_state_change:
