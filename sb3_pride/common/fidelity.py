@@ -5,7 +5,6 @@ distances tell new samples from copies of the buffer. Marginal statistics (mean 
 reference only: they read excellent for samples whose next states are wrong by two typical steps.
 """
 
-import math
 from dataclasses import dataclass
 from typing import Optional
 
@@ -15,12 +14,13 @@ from stable_baselines3.common.utils import get_device
 from torch import nn
 
 from sb3_pride.common.entropy import knn_distances
+from sb3_pride.common.reward_model import EnsembleMLP
 from sb3_pride.common.utils import check_positive_ints
 
 
 class DynamicsEnsemble(nn.Module):
     """
-    A one-step dynamics model: ``n_members`` MLPs, trained together as one batched network, each predicting the
+    A one-step dynamics model: ``n_members`` MLPs (SiLU), trained together as one batched network, each predicting the
     z-scored state change (s' − s) from the z-scored (s, a), each on its own minibatches. Errors are in units of
     the per-dimension std of s' − s: ``errors`` is the RMS over dimensions of (ŝ' − s') / std(s' − s) under the
     members' mean, ``disagreement`` the RMS over dimensions of the members' std.
@@ -55,7 +55,10 @@ class DynamicsEnsemble(nn.Module):
         device: th.device | str = "auto",
     ):
         super().__init__()
-        check_positive_ints(obs_dim=obs_dim, action_dim=action_dim, n_members=n_members, width=width, train_steps=train_steps)
+        check_positive_ints(obs_dim=obs_dim, action_dim=action_dim, n_members=n_members, width=width, train_steps=train_steps,
+                            batch_size=batch_size)
+        if learning_rate <= 0:
+            raise ValueError(f"learning_rate must be > 0, got {learning_rate}")
         if not 0.0 < holdout_fraction < 1.0:
             raise ValueError(f"holdout_fraction must be in (0, 1), got {holdout_fraction}")
         self.obs_dim, self.action_dim = obs_dim, action_dim
@@ -63,27 +66,21 @@ class DynamicsEnsemble(nn.Module):
         self.learning_rate, self.holdout_fraction = learning_rate, holdout_fraction
         self.device_ = get_device(device)
         self.rng = np.random.default_rng(seed)
-        sizes = [obs_dim + action_dim, width, width, obs_dim]
-        generator = th.Generator().manual_seed(int(self.rng.integers(2**62)))
-        self.weights = nn.ParameterList()
-        self.biases = nn.ParameterList()
-        for fan_in, fan_out in zip(sizes[:-1], sizes[1:]):
-            bound = 1.0 / math.sqrt(fan_in)  # PyTorch's nn.Linear initialization, per member
-            self.weights.append(nn.Parameter((th.rand(n_members, fan_in, fan_out, generator=generator) * 2 - 1) * bound))
-            self.biases.append(nn.Parameter((th.rand(n_members, 1, fan_out, generator=generator) * 2 - 1) * bound))
-        for name, size in (("input_mean", sizes[0]), ("input_std", sizes[0]), ("delta_mean", obs_dim), ("delta_std", obs_dim)):
+        # the members are the reward model's batched ensemble MLP with a linear output, initialized from the
+        # model's own seed (the global torch RNG is left as it was)
+        with th.random.fork_rng(devices=[]):
+            th.manual_seed(int(self.rng.integers(2**62)))
+            self.members = EnsembleMLP(
+                n_members, obs_dim + action_dim, (width, width), obs_dim, output_activation=None, hidden_activation=nn.functional.silu
+            )
+        for name, size in (("input_mean", obs_dim + action_dim), ("input_std", obs_dim + action_dim), ("delta_mean", obs_dim), ("delta_std", obs_dim)):
             self.register_buffer(name, th.zeros(size) if "mean" in name else th.ones(size))
         self.optimizer = th.optim.Adam(self.parameters(), lr=learning_rate)
         self.to(self.device_)
 
     def forward(self, inputs: th.Tensor) -> th.Tensor:
         """(M, B, obs + action) z-scored inputs -> (M, B, obs) z-scored predicted state changes."""
-        h = inputs
-        for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
-            h = th.baddbmm(bias, h, weight)
-            if i < len(self.weights) - 1:
-                h = nn.functional.silu(h)
-        return h
+        return self.members(inputs)
 
     def _inputs(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
         x = th.as_tensor(np.concatenate([obs, actions], axis=-1), dtype=th.float32, device=self.device_)

@@ -1,7 +1,7 @@
 """The reward model r̂: an ensemble of MLPs on (s, a) trained on preferences with the Bradley–Terry loss."""
 
 import math
-from typing import Optional
+from typing import Callable, Optional
 
 import numpy as np
 import torch as th
@@ -52,10 +52,22 @@ class EnsembleMLP(nn.Module):
     :param input_dim: input size
     :param net_arch: hidden layer sizes
     :param output_dim: output size
+    :param output_activation: applied to the output (the reward model's tanh; None: linear)
+    :param hidden_activation: applied after every hidden layer (the reward model's LeakyReLU)
     """
 
-    def __init__(self, n_members: int, input_dim: int, net_arch: tuple[int, ...], output_dim: int = 1):
+    def __init__(
+        self,
+        n_members: int,
+        input_dim: int,
+        net_arch: tuple[int, ...],
+        output_dim: int = 1,
+        output_activation: Optional[Callable[[th.Tensor], th.Tensor]] = th.tanh,
+        hidden_activation: Callable[[th.Tensor], th.Tensor] = F.leaky_relu,
+    ):
         super().__init__()
+        self.output_activation = output_activation
+        self.hidden_activation = hidden_activation
         dims = [input_dim, *net_arch, output_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
@@ -65,11 +77,14 @@ class EnsembleMLP(nn.Module):
             self.biases.append(nn.Parameter(th.empty(n_members, 1, fan_out).uniform_(-bound, bound)))
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        """(members, N, input_dim) -> (members, N, output_dim), hidden layers LeakyReLU, output tanh."""
+        """(members, N, input_dim) -> (members, N, output_dim), hidden layers ``hidden_activation``, output ``output_activation``."""
         last = len(self.weights) - 1
         for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
             x = th.baddbmm(bias, x, weight)
-            x = F.leaky_relu(x) if i < last else th.tanh(x)
+            if i < last:
+                x = self.hidden_activation(x)
+            elif self.output_activation is not None:
+                x = self.output_activation(x)
         return x
 
 
