@@ -54,3 +54,24 @@ def test_global_rng_untouched_and_bad_data_rejected():
         model.fit(np.zeros((10, 4)))
     with pytest.raises(ValueError, match="non-finite"):
         model.fit(np.full((10, 3), np.nan))
+
+
+def test_sample_near_and_sample_given_stay_anchored():
+    rng = np.random.default_rng(0)
+    train = mixture(2000, rng)
+    model = ElucidatedDiffusion(2, width=32, n_blocks=1, dim_t=16, train_steps=300, sample_steps=6, seed=0)
+    model.fit(train)
+    levels = model.noise_levels(0.25)
+    assert float(levels[0]) == pytest.approx(0.25) and bool(th.all(levels[1:] < levels[:-1]))
+    anchors = train[:200]
+    near = model.sample_near(anchors, start_sigma=0.01)
+    far = model.sample_near(anchors, start_sigma=80.0)
+    near_gap = np.linalg.norm(near - anchors, axis=1).mean()
+    assert near_gap < 0.1 < np.linalg.norm(far - anchors, axis=1).mean()
+    given = model.sample_given(anchors, known=[0])
+    np.testing.assert_allclose(given[:, 0], anchors[:, 0], atol=1e-4)  # the known dimension comes back exactly
+    assert np.linalg.norm(given[:, 1] - anchors[:, 1]) > 0  # the other one is generated
+    with pytest.raises(ValueError, match="start_sigma"):
+        model.sample_near(anchors, start_sigma=0.0)
+    with pytest.raises(ValueError, match="anchors"):
+        model.sample_near(anchors[:, :1], start_sigma=0.5)

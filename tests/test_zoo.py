@@ -22,9 +22,10 @@ TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "button-press-v3", "doo
 TINY = (
     "learning_starts:100 unsupervised_steps:100 feedback_interval:200 queries_per_session:10 max_feedback:30 "
     "segment_length:20 batch_size:64 diffusion_interval:200 synthetic_samples:500 diffusion_train_steps:50 "
-    "diffusion_sample_steps:4 policy_kwargs:dict(net_arch=[32,32]) buffer_size:5000"
+    "diffusion_sample_steps:4 synthetic_start:0 synthetic_ramp:100 diffusion_window:400 "
+    "dynamics_kwargs:dict(width=16,train_steps=20) policy_kwargs:dict(net_arch=[32,32]) buffer_size:5000"
 ).split()
-TINY_PEBBLE = [param for param in TINY if not param.startswith(("diffusion", "synthetic"))]
+TINY_PEBBLE = [param for param in TINY if not param.startswith(("diffusion", "synthetic", "dynamics"))]
 
 
 def entries(name):
