@@ -148,6 +148,9 @@ def test_delayed_start_and_ramp_of_u(tiny_kwargs):
     assert model.replay_buffer.n_synthetic(model.batch_size) == 16
     model.learn(200, reset_num_timesteps=False)
     assert model.current_synthetic_ratio() == 0.5
+    # a new learn() that restarts the step count keeps the distances: the ramp stays over, the next retrain stays 250 steps away
+    model.learn(10, reset_num_timesteps=True)
+    assert model.first_generation_step == 600 - 950 and model.next_diffusion_step == 1200 - 950
 
 
 def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
@@ -210,5 +213,9 @@ def test_bad_mixing_input_names_the_parameter():
             PRIDE("MlpPolicy", "Pendulum-v1", **{name: value})
     with pytest.raises(ValueError, match="synthetic_keep_quantile"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=1.01)
+    with pytest.raises(ValueError, match="anchor_noise"):
+        PRIDE("MlpPolicy", "Pendulum-v1", anchor_noise=2.0, diffusion_kwargs=dict(sigma_max=1.0))
+    with pytest.raises(ValueError, match="dynamics_kwargs"):
+        PRIDE("MlpPolicy", "Pendulum-v1", dynamics_kwargs=dict(depth=3))
     with pytest.raises(ValueError, match="fidelity_check"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=0.5, fidelity_check=False)

@@ -252,8 +252,8 @@ class ElucidatedDiffusion(nn.Module):
         sampler's churn, the first step briefly raises the level to ≈ (1 + min(S_churn/N, √2 − 1))·``start_sigma``). Small
         ``start_sigma`` stays close to real data; ``start_sigma = σ_max`` forgets the anchor.
         """
-        if not 0.0 < start_sigma <= self.sigma_max:
-            raise ValueError(f"start_sigma must be in (0, sigma_max={self.sigma_max}], got {start_sigma}")
+        if not self.sigma_min < start_sigma <= self.sigma_max:
+            raise ValueError(f"start_sigma must be in (sigma_min={self.sigma_min}, sigma_max={self.sigma_max}], got {start_sigma}")
         anchors = self._normalize(anchors)
         return self._sample_chunked(
             len(anchors),

@@ -1,3 +1,4 @@
+import inspect
 from typing import Any, ClassVar, Optional, Union
 
 import numpy as np
@@ -128,8 +129,14 @@ class PRIDE(PEBBLE):
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
         if generation not in GENERATIONS:
             raise ValueError(f"generation must be one of {GENERATIONS}, got {generation!r}")
-        if not 0.0 < anchor_noise <= 80.0:
-            raise ValueError(f"anchor_noise must be in (0, 80] (σ_max), got {anchor_noise}")
+        sigma_min = (diffusion_kwargs or {}).get("sigma_min", 0.002)
+        sigma_max = (diffusion_kwargs or {}).get("sigma_max", 80.0)
+        if not sigma_min < anchor_noise <= sigma_max:
+            raise ValueError(f"anchor_noise must be in (sigma_min={sigma_min}, sigma_max={sigma_max}], got {anchor_noise}")
+        try:  # fail now, not at the first retrain
+            inspect.signature(DynamicsEnsemble).bind(1, 1, **(dynamics_kwargs or {}))
+        except TypeError as error:
+            raise ValueError(f"dynamics_kwargs must be DynamicsEnsemble arguments: {error}") from None
         if not 0.0 < synthetic_keep_quantile <= 1.0:
             raise ValueError(f"synthetic_keep_quantile must be in (0, 1], got {synthetic_keep_quantile}")
         if synthetic_filter not in SYNTHETIC_FILTERS:
