@@ -32,7 +32,8 @@ import torch as th  # noqa: E402
 
 import sb3_pride  # noqa: E402,F401  (registers the environments)
 from sb3_pride.common.diffusion import ElucidatedDiffusion  # noqa: E402
-from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity  # noqa: E402
+from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions  # noqa: E402
+from sb3_pride.pride.pride import add_states_to_next_states  # noqa: E402
 
 
 def collect(n: int, seed: int) -> np.ndarray:
@@ -84,7 +85,7 @@ def main() -> None:
     dim = real.shape[1]
     start = time.perf_counter()
     yardstick = DynamicsEnsemble(obs_dim, action_dim, train_steps=3000, seed=args.seed)
-    yardstick.fit(real[:, :obs_dim], real[:, obs_dim : obs_dim + action_dim], real[:, obs_dim + action_dim :])
+    yardstick.fit(*split_transitions(real, obs_dim, action_dim))
     yardstick_seconds = time.perf_counter() - start
     rng = np.random.default_rng(args.seed)
     # resumable: rows already in --out are kept and not measured again
@@ -126,18 +127,10 @@ def main() -> None:
 
     def encode(vectors: np.ndarray) -> np.ndarray:
         """[s, a, s'] -> what the generator models: the same, or [s, a, s' − s]."""
-        if not state_changes:
-            return vectors
-        encoded = vectors.copy()
-        encoded[:, obs_dim + action_dim :] -= encoded[:, :obs_dim]
-        return encoded
+        return add_states_to_next_states(vectors, obs_dim, action_dim, -1.0) if state_changes else vectors
 
     def decode(vectors: np.ndarray) -> np.ndarray:
-        if not state_changes:
-            return vectors
-        decoded = vectors.copy()
-        decoded[:, obs_dim + action_dim :] += decoded[:, :obs_dim]
-        return decoded
+        return add_states_to_next_states(vectors, obs_dim, action_dim, 1.0) if state_changes else vectors
 
     def model(width: int, blocks: int, train_steps: int, sample_steps: int, warm_start: bool = False) -> ElucidatedDiffusion:
         return ElucidatedDiffusion(dim, width=width, n_blocks=blocks, train_steps=train_steps, sample_steps=sample_steps,

@@ -158,8 +158,9 @@ class DiffusionCallback(BaseCallback):
             for key, value in vars(fidelity).items():
                 self.logger.record(f"diffusion/{key}", value)
             if len(kept) < len(generated):
-                kept_fidelity = measure_kept(model, real, kept)
-                self.logger.record("diffusion/kept_dynamics_error_ratio", kept_fidelity)
+                # under the ensemble already fitted (optimistic under the dynamics filter, which chose them by it)
+                kept_error = model.dynamics.errors(*model.split(kept)).mean()
+                self.logger.record("diffusion/kept_dynamics_error_ratio", kept_error / max(fidelity.real_dynamics_error, 1e-12))
             summary = f", dynamics error ratio {fidelity.dynamics_error_ratio:.2f}, novelty {fidelity.novelty_ratio:.2f}"
         if self.verbose > 0:
             print(
@@ -168,10 +169,3 @@ class DiffusionCallback(BaseCallback):
             )
         return True
 
-
-def measure_kept(model: "PRIDE", real: np.ndarray, kept: np.ndarray) -> float:
-    """Dynamics error ratio of the kept samples under the ensemble already fitted (optimistic under the dynamics filter)."""
-    assert model.dynamics is not None
-    obs, actions, next_obs = model.split(kept)
-    real_error = model.dynamics.errors(*model.split(real[model.dynamics.holdout])).mean()
-    return float(model.dynamics.errors(obs, actions, next_obs).mean() / max(real_error, 1e-12))

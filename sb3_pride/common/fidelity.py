@@ -23,7 +23,7 @@ class DynamicsEnsemble(nn.Module):
     A one-step dynamics model: ``n_members`` MLPs (SiLU), trained together as one batched network, each predicting the
     z-scored state change (s' − s) from the z-scored (s, a), each on its own minibatches. Errors are in units of
     the per-dimension std of s' − s: ``errors`` is the RMS over dimensions of (ŝ' − s') / std(s' − s) under the
-    members' mean, ``disagreement`` the RMS over dimensions of the members' std.
+    members' mean.
 
     ``fit`` keeps a random ``holdout_fraction`` of the transitions out of training: the error on them is how
     consistent *real* data is under this model, the yardstick for synthetic data (``DynamicsEnsemble.ratio``).
@@ -90,12 +90,8 @@ class DynamicsEnsemble(nn.Module):
         delta = th.as_tensor(next_obs - obs, dtype=th.float32, device=self.device_)
         return (delta - self.delta_mean) / self.delta_std
 
-    def fit(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> float:
-        """
-        Train on all but a random held-out share of the transitions.
-
-        :return: the error of real held-out transitions (units of std(s' − s))
-        """
+    def fit(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> None:
+        """Train on all but a random held-out share of the transitions (``holdout`` and ``train_indices`` tell which)."""
         obs, actions, next_obs = (np.asarray(a, dtype=np.float32) for a in (obs, actions, next_obs))
         n = len(obs)
         if n < 10:
@@ -117,7 +113,6 @@ class DynamicsEnsemble(nn.Module):
             loss.backward()
             self.optimizer.step()
         self.train_indices = train
-        return float(self.errors(obs[self.holdout], actions[self.holdout], next_obs[self.holdout]).mean())
 
     @th.no_grad()
     def _predictions(self, obs: np.ndarray, actions: np.ndarray) -> th.Tensor:
@@ -128,10 +123,6 @@ class DynamicsEnsemble(nn.Module):
         """Per transition: RMS over dimensions of (ensemble-mean ŝ' − s') / std(s' − s)."""
         predicted = self._predictions(obs, actions).mean(dim=0)
         return ((predicted - self._targets(obs, next_obs)) ** 2).mean(dim=-1).sqrt().cpu().numpy()
-
-    def disagreement(self, obs: np.ndarray, actions: np.ndarray) -> np.ndarray:
-        """Per transition: RMS over dimensions of the members' std of ŝ' − s (same units as ``errors``)."""
-        return self._predictions(obs, actions).std(dim=0).pow(2).mean(dim=-1).sqrt().cpu().numpy()
 
 
 @dataclass
@@ -155,6 +146,11 @@ class Fidelity:
     novelty_ratio: float
     mean_gap: float
     std_gap: float
+
+
+def split_transitions(vectors: np.ndarray, obs_dim: int, action_dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(s, a, s') of transition vectors [s, a, s', ...] (any trailing column, e.g. a terminal flag, is left out)."""
+    return vectors[:, :obs_dim], vectors[:, obs_dim : obs_dim + action_dim], vectors[:, obs_dim + action_dim : 2 * obs_dim + action_dim]
 
 
 def marginal_gaps(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float]:
@@ -190,7 +186,7 @@ def measure_fidelity(
         return Fidelity(*(float("nan"),) * 6)
 
     def split(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return vectors[:, :obs_dim], vectors[:, obs_dim : obs_dim + action_dim], vectors[:, obs_dim + action_dim : 2 * obs_dim + action_dim]
+        return split_transitions(vectors, obs_dim, action_dim)
 
     if refit:
         dynamics.fit(*split(real))

@@ -9,7 +9,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
 from sb3_pride.common.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import ElucidatedDiffusion
-from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity
+from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity, split_transitions
 from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
@@ -18,6 +18,13 @@ from sb3_pride.pebble.pebble import PEBBLE
 GENERATIONS = ("unconditional", "near_real")
 #: what judges which synthetic transitions to keep (``synthetic_filter``)
 SYNTHETIC_FILTERS = ("dynamics", "reward")
+
+
+def add_states_to_next_states(vectors: np.ndarray, obs_dim: int, action_dim: int, sign: float) -> np.ndarray:
+    """A copy of transition vectors [s, a, s', ...] with s' + sign·s in place of s': sign −1 gives [s, a, s' − s], +1 undoes it."""
+    changed = vectors.copy()
+    changed[:, obs_dim + action_dim : 2 * obs_dim + action_dim] += sign * changed[:, :obs_dim]
+    return changed
 
 
 class PRIDE(PEBBLE):
@@ -254,21 +261,17 @@ class PRIDE(PEBBLE):
         vectors = vectors.reshape(-1, vectors.shape[-1])
         return vectors if self.diffusion_window is None else vectors[-self.diffusion_window :]
 
-    def _state_change_view(self, vectors: np.ndarray, sign: float) -> np.ndarray:
-        if not self.model_state_change:
-            return vectors
-        obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
-        changed = vectors.copy()
-        changed[:, obs_dim + action_dim : 2 * obs_dim + action_dim] += sign * changed[:, :obs_dim]
-        return changed
-
     def encode(self, vectors: np.ndarray) -> np.ndarray:
         """Transition vectors as the diffusion models them: [s, a, s' − s] with ``model_state_change``."""
-        return self._state_change_view(vectors, -1.0)
+        if not self.model_state_change:
+            return vectors
+        return add_states_to_next_states(vectors, self.real_buffer.obs_shape[0], self.real_buffer.action_dim, -1.0)
 
     def decode(self, vectors: np.ndarray) -> np.ndarray:
         """The inverse of ``encode``: back to [s, a, s']."""
-        return self._state_change_view(vectors, 1.0)
+        if not self.model_state_change:
+            return vectors
+        return add_states_to_next_states(vectors, self.real_buffer.obs_shape[0], self.real_buffer.action_dim, 1.0)
 
     def generate(self, real: np.ndarray, n: int) -> np.ndarray:
         """``n`` synthetic transition vectors [s, a, s'(, terminal)] by ``generation`` from the fitted diffusion."""
@@ -306,8 +309,7 @@ class PRIDE(PEBBLE):
 
     def split(self, vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(s, a, s') of transition vectors."""
-        obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
-        return vectors[:, :obs_dim], vectors[:, obs_dim : obs_dim + action_dim], vectors[:, obs_dim + action_dim : 2 * obs_dim + action_dim]
+        return split_transitions(vectors, self.real_buffer.obs_shape[0], self.real_buffer.action_dim)
 
     def store_synthetic(self, vectors: np.ndarray) -> None:
         """Replace B_syn with sanitized vectors, rewarded by r̂(s, a)."""
