@@ -21,7 +21,8 @@ import torch as th  # noqa: E402
 from stable_baselines3 import SAC  # noqa: E402
 
 import sb3_pride  # noqa: E402
-from sb3_pride.common.callbacks import DiffusionCallback, FeedbackCallback, UnsupervisedPretrainingCallback  # noqa: E402
+from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback  # noqa: E402
+from sb3_pride.pride.callbacks import DiffusionCallback  # noqa: E402
 from sb3_pride.zoo import hyperparams_dir, model_kwargs  # noqa: E402
 
 #: the CPU tier (hyperparams/cpu/): 256 × 2 networks, batch 256, one update per step; this benchmark's run is

@@ -84,6 +84,21 @@ class PreferenceReplayBuffer(ReplayBuffer):
         """Rewrite every stored reward with r̂ (PEBBLE's relabeling)."""
         relabel_rewards(self, reward_fn, batch_size)
 
+    def end_episodes(self) -> None:
+        """
+        Mark the last stored transition of every environment as an episode end, when the env is reset in the middle
+        of an episode (``learn(reset_num_timesteps=True)``, a new env, a resumed run), so that no query segment
+        spans two episodes. It is recorded as a time-limit truncation (``timeouts``), as SB3 records one, so the
+        critic still bootstraps from it; without ``handle_timeout_termination`` it reads as a termination.
+        """
+        if self.size() == 0:
+            return
+        last = (self.pos - 1) % self.buffer_size
+        running = self.dones[last] == 0  # an episode that ended by itself keeps its termination
+        self.dones[last, running] = 1
+        if self.handle_timeout_termination:
+            self.timeouts[last, running] = 1
+
     def sample(self, batch_size: int, env: Optional[VecNormalize] = None) -> ReplayBufferSamples:
         samples = super().sample(batch_size, env=env)
         if self.intrinsic_reward is None:
@@ -139,7 +154,10 @@ class DualReplayBuffer(ReplayBuffer):
     transitions followed by the rest real ones, or ``B`` real ones while the synthetic part is empty
     (Algorithm 1, line 35).
 
-    It is a facade: it stores nothing itself, its parts do. Same constructor as SB3's ``ReplayBuffer`` plus:
+    It is a facade: it stores nothing itself, its parts do. SB3's storage attributes (``observations``,
+    ``next_observations``, ``actions``, ``rewards``, ``dones``, ``timeouts``, ``pos``, ``full``, ``size()``) are the
+    real part's, so code written for SB3's buffers reads what the agent lived. Same constructor as SB3's
+    ``ReplayBuffer`` plus:
 
     :param synthetic_buffer_size: capacity of the synthetic part (SynthER: 1e6)
     :param synthetic_ratio: u, the synthetic share of each minibatch
@@ -173,6 +191,32 @@ class DualReplayBuffer(ReplayBuffer):
     @property
     def pos(self) -> int:  # type: ignore[override]
         return self.real.pos
+
+    # SB3's storage arrays are the real part's (what the agent lived: r̂-labeled rewards, dones, timeouts); the
+    # synthetic transitions are in ``.synthetic``'s arrays
+    @property
+    def observations(self) -> np.ndarray:  # type: ignore[override]
+        return self.real.observations
+
+    @property
+    def next_observations(self) -> np.ndarray:  # type: ignore[override]
+        return self.real.next_observations
+
+    @property
+    def actions(self) -> np.ndarray:  # type: ignore[override]
+        return self.real.actions
+
+    @property
+    def rewards(self) -> np.ndarray:  # type: ignore[override]
+        return self.real.rewards
+
+    @property
+    def dones(self) -> np.ndarray:  # type: ignore[override]
+        return self.real.dones
+
+    @property
+    def timeouts(self) -> np.ndarray:  # type: ignore[override]
+        return self.real.timeouts
 
     @property
     def full(self) -> bool:  # type: ignore[override]

@@ -199,7 +199,7 @@ class ElucidatedDiffusion(nn.Module):
         steps = steps or self.train_steps
         start = time.perf_counter()
         self._fit_normalizer(data)
-        normalized = (th.as_tensor(data, device=self.device_) - self.mean) / self.std
+        normalized = (th.as_tensor(data, dtype=th.float32, device=self.device_) - self.mean) / self.std
         net = copy.deepcopy(self.ema) if self.warm_start else self._new_denoiser()
         net.train()
         optimizer = th.optim.AdamW(net.parameters(), lr=self.learning_rate, betas=(0.9, 0.99), weight_decay=0.0)
@@ -282,7 +282,7 @@ class ElucidatedDiffusion(nn.Module):
         vectors = np.asarray(vectors, dtype=np.float32)
         if vectors.ndim != 2 or vectors.shape[1] != self.dim:
             raise ValueError(f"anchors must have shape (N, {self.dim}), got {vectors.shape}")
-        return (th.as_tensor(vectors, device=self.device_) - self.mean) / self.std
+        return (th.as_tensor(vectors, dtype=th.float32, device=self.device_) - self.mean) / self.std
 
     def _noise(self, shape: tuple[int, ...]) -> th.Tensor:
         return th.randn(shape, generator=self.generator, device=self.device_)

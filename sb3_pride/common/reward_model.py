@@ -142,7 +142,7 @@ class RewardEnsemble(nn.Module):
     def member_segment_returns(self, inputs: np.ndarray, batch_size: int = 256) -> th.Tensor:
         """Each member's return of each segment: (n, 2, k, input_dim) -> (members, n, 2)."""
         chunks = [
-            self(th.as_tensor(inputs[i : i + batch_size], device=self.device)).sum(dim=(-2, -1))
+            self(th.as_tensor(inputs[i : i + batch_size], dtype=th.float32, device=self.device)).sum(dim=(-2, -1))
             for i in range(0, len(inputs), batch_size)
         ]
         return th.cat(chunks, dim=1).cpu()

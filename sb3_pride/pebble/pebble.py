@@ -1,3 +1,6 @@
+import os
+import warnings
+from collections.abc import Iterable
 from typing import Any, ClassVar, Optional, TypeVar, Union
 
 import numpy as np
@@ -8,19 +11,25 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
 from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
 from stable_baselines3.common.noise import ActionNoise
+from stable_baselines3.common.preprocessing import is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
-from sb3_pride.common.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
+from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.common.entropy import StateEntropyReward
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import Teacher, make_teacher
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
+
+
+def _belongs_to(module: th.nn.Module, owner: Optional[th.nn.Module]) -> bool:
+    return owner is not None and any(module is part for part in owner.modules())
 
 
 class PEBBLE(SAC):
@@ -37,7 +46,11 @@ class PEBBLE(SAC):
     reward (Eq. 3); the critic is then reset and trained ``critic_reset_updates`` steps on r̂.
 
     Parameters not listed here are SAC's, with the same meaning and defaults except ``learning_starts``
-    (PEBBLE: 1000).
+    (PEBBLE: 1000) and ``n_steps``, which must stay 1 (n-step sums of rewards that relabeling rewrites).
+    ``target_update_interval`` counts gradient steps within one ``train()`` call, as in SB3
+    (DLR-RM/stable-baselines3#2158): at ``gradient_steps=1`` the target follows every update whatever its value.
+    Saves (``save()``, ``save_replay_buffer()``, SB3's ``CheckpointCallback``) write a temporary file and rename it,
+    so a run killed mid-save leaves the previous checkpoint readable.
 
     :param teacher: who labels the queries: a ``Teacher`` (a callable, e.g. a person behind a UI) or the name of
         a B-Pref scripted teacher preset: "oracle", "mistake", "noisy", "skip", "myopic", "equal"
@@ -59,6 +72,11 @@ class PEBBLE(SAC):
     :param reward_epochs: most epochs over the preference dataset per session, stopping early at 97% training
         accuracy (PEBBLE: 50 on DMC, 10 on Meta-World)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
+    :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
+        or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
+        that holds answers it does not have (a run killed after its last checkpoint) takes them back in the
+        sessions they were given in, asking the teacher only for the rest: no answer is lost, none asked twice.
+        None: no journal
     """
 
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
@@ -83,6 +101,7 @@ class PEBBLE(SAC):
         replay_buffer_class: Optional[type[ReplayBuffer]] = None,
         replay_buffer_kwargs: Optional[dict[str, Any]] = None,
         optimize_memory_usage: bool = False,
+        n_steps: int = 1,
         ent_coef: Union[str, float] = "auto",
         target_update_interval: int = 1,
         target_entropy: Union[str, float] = "auto",
@@ -111,6 +130,7 @@ class PEBBLE(SAC):
         reward_batch_size: int = 128,
         reward_epochs: int = 50,
         critic_reset_updates: int = 100,
+        preference_journal: Optional[Union[str, os.PathLike]] = None,
         _init_setup_model: bool = True,
     ):
         check_positive_ints(
@@ -130,13 +150,21 @@ class PEBBLE(SAC):
             raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {query_selection!r}")
         if reward_learning_rate <= 0:
             raise ValueError(f"reward_learning_rate must be > 0, got {reward_learning_rate}")
+        if n_steps != 1:
+            raise ValueError(
+                f"n_steps must be 1, got {n_steps}: n-step returns sum stored rewards along a trajectory, but PEBBLE "
+                "relabels every stored reward with r̂ after each reward update (and r_int is computed per minibatch), "
+                "so the sums would mix rewards of different models"
+            )
         if replay_buffer_class is not None and not issubclass(replay_buffer_class, self.buffer_class):
             raise ValueError(
                 f"replay_buffer_class must subclass {self.buffer_class.__name__} (true rewards kept aside), "
                 f"got {replay_buffer_class.__name__}"
             )
         if env is not None:
-            env = self._check_env(env, segment_length, verbose)
+            # rl-zoo3 and SB3's load() build the model with _init_setup_model=False before restoring its
+            # segment_length: load() checks the episode length itself, once the saved value is back
+            env = self._check_env(env, segment_length if _init_setup_model else None, verbose)
 
         super().__init__(
             policy,
@@ -186,10 +214,14 @@ class PEBBLE(SAC):
         self.reward_batch_size = reward_batch_size
         self.reward_epochs = reward_epochs
         self.critic_reset_updates = critic_reset_updates
+        self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         # learning state, saved with the model
         self.feedback_asked = 0
         self.feedback_labeled = 0
         self.feedback_sessions = 0
+        #: how many entries of the preference journal this model's preference dataset and counters include
+        self.journal_entries = 0
+        self._journal_cache: Optional[tuple[str, list[JournalEntry]]] = None
         self.next_feedback_step = learning_starts + unsupervised_steps
         self.preferences: Optional[PreferenceDataset] = None
         self.preference_rng = np.random.default_rng(seed)
@@ -197,16 +229,28 @@ class PEBBLE(SAC):
         #: train() calls between two real-only critic diagnostics (train/critic_loss_real, train/q_real)
         self.diagnostic_interval = 100
         self._train_calls = 0
+        self._warned_short_episodes = False
         self._diagnostic_rng = np.random.default_rng(None if seed is None else seed + 1)
 
         if _init_setup_model:
             self._setup_model()
 
     @staticmethod
-    def _check_env(env: Union[GymEnv, str], segment_length: int, verbose: int) -> GymEnv:
-        """Preference learning needs flat Box observations and Box actions; say how to get them."""
+    def _check_env(env: Union[GymEnv, str], segment_length: Optional[int], verbose: int) -> GymEnv:
+        """
+        Preference learning needs flat Box observations and Box actions (say how to get them), no reward
+        normalization, and episodes that can hold a segment. Run by the constructor, ``set_env()`` and ``load()``.
+
+        :param segment_length: None: skip the episode-length check
+        """
         env = BaseAlgorithm._wrap_env(maybe_make_env(env, verbose), verbose)
         obs_space, action_space = env.observation_space, env.action_space
+        if is_image_space(obs_space, normalized_image=True):
+            raise ValueError(
+                f"env has image observations {obs_space}: not supported. The reward model, the state entropy and the "
+                "diffusion model take one flat vector of states; use the env's proprioceptive states (dm_control and "
+                "Meta-World provide them: e.g. 'sb3_pride/walker-walk-v0', 'sb3_pride/button-press-v3')"
+            )
         if isinstance(obs_space, spaces.Dict):
             raise ValueError(
                 "env has a Dict observation space (dm_control's default); the reward model and the state entropy "
@@ -223,6 +267,8 @@ class PEBBLE(SAC):
                 "env is a VecNormalize with norm_reward=True: it would scale r̂ by statistics of the true return "
                 "(a leak, and the wrong scale); use VecNormalize(..., norm_reward=False)"
             )
+        if segment_length is None:
+            return env
         specs = env.get_attr("spec")
         limits = [spec.max_episode_steps for spec in specs if spec is not None and spec.max_episode_steps]
         if limits and min(limits) < segment_length:
@@ -230,6 +276,19 @@ class PEBBLE(SAC):
                 f"segment_length={segment_length} is longer than an episode of this env ({min(limits)} steps)"
             )
         return env
+
+    def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
+        """SB3's ``set_env``, after the constructor's checks of ``env`` (spaces, reward normalization, episode length)."""
+        super().set_env(self._check_env(env, self.segment_length, self.verbose), force_reset=force_reset)
+
+    @classmethod
+    def load(cls, path, env: Optional[GymEnv] = None, device: Union[th.device, str] = "auto", custom_objects=None,
+             print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
+        """SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``."""
+        model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
+        if env is not None:
+            model._check_env(model.env, model.segment_length, model.verbose)
+        return model
 
     def _setup_model(self) -> None:
         super()._setup_model()
@@ -246,6 +305,8 @@ class PEBBLE(SAC):
         if self.preferences is None:
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
         self._attach_reward_model()
+        self._journal_cache = None
+        self.journal_history()  # a journal that does not fit this model fails now, not at the next session
 
     def _attach_reward_model(self) -> None:
         """New transitions get r̂ once a reward model was learned (0 before, overwritten by the first relabel)."""
@@ -309,6 +370,9 @@ class PEBBLE(SAC):
         if reset_num_timesteps and self.num_timesteps > 0:
             # the step count restarts at 0: keep the schedules' remaining distances
             self._shift_schedules(-self.num_timesteps)
+        if reset_num_timesteps or self._last_obs is None:
+            # SB3 resets the env now: the episode in progress ends here, or a query segment could span two episodes
+            self.real_buffer.end_episodes()
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _shift_schedules(self, steps: int) -> None:
@@ -347,6 +411,57 @@ class PEBBLE(SAC):
             raise ValueError("teacher labels must be in [0, 1] (P[second segment preferred]) or NaN (skipped)")
         return labels
 
+    def journal_history(self) -> list[JournalEntry]:
+        """Every entry of the preference journal (read once, then kept in step with what this model appends)."""
+        if self.preference_journal is None:
+            return []
+        if self._journal_cache is None or self._journal_cache[0] != self.preference_journal:
+            entries = PreferenceJournal(self.preference_journal).read()
+            expected = (2, self.segment_length, self.preferences.inputs.shape[-1])
+            for entry in entries:
+                if entry.inputs.shape != expected:
+                    raise ValueError(
+                        f"preference_journal {self.preference_journal} holds pairs of shape {entry.inputs.shape}, "
+                        f"this model's are {expected} (segment_length, obs_dim + action_dim): not this run's journal"
+                    )
+            if len(entries) < self.journal_entries:
+                raise ValueError(
+                    f"preference_journal {self.preference_journal} holds {len(entries)} answers, but this model "
+                    f"already includes {self.journal_entries}: not this run's journal"
+                )
+            self._journal_cache = (self.preference_journal, entries)
+        return self._journal_cache[1]
+
+    def journaled_answers(self, session: int) -> list[JournalEntry]:
+        """The journal's answers of feedback session ``session`` that this model does not have yet."""
+        answers = []
+        for entry in self.journal_history()[self.journal_entries :]:
+            if entry.session != session:
+                break
+            answers.append(entry)
+        return answers
+
+    def record_answers(self, entries: list[JournalEntry]) -> None:
+        """Append new answers to the preference journal (flushed to disk before returning)."""
+        if self.preference_journal is None or not entries:
+            return
+        PreferenceJournal(self.preference_journal).append(entries)
+        self.journal_history().extend(entries)
+
+    def save(self, path, exclude: Optional[Iterable[str]] = None, include: Optional[Iterable[str]] = None) -> None:
+        """SB3's ``save``, written to a temporary file renamed over ``path`` once complete."""
+        if not isinstance(path, (str, os.PathLike)):
+            return super().save(path, exclude, include)
+        with atomic_write_path(path, suffix="zip") as temporary:
+            super().save(temporary, exclude, include)
+
+    def save_replay_buffer(self, path) -> None:
+        """SB3's ``save_replay_buffer``, written to a temporary file renamed over ``path`` once complete."""
+        if not isinstance(path, (str, os.PathLike)):
+            return super().save_replay_buffer(path)
+        with atomic_write_path(path, suffix="pkl") as temporary:
+            super().save_replay_buffer(temporary)
+
     def relabel(self) -> None:
         """Every stored reward becomes r̂ of the current reward model (Algorithm 1, line 20)."""
         self._attach_reward_model()
@@ -361,27 +476,41 @@ class PEBBLE(SAC):
         return float(np.corrcoef(predicted, true_rewards)[0, 1])
 
     def reset_critic(self) -> None:
-        """PEBBLE's reset after pre-training: fresh Q-networks, target copied from them, fresh Adam state.
-        The actor and the entropy coefficient keep what pre-training taught them."""
-        for q_network in self.critic.q_networks:
-            for module in q_network.modules():
-                if hasattr(module, "reset_parameters"):
-                    module.reset_parameters()
+        """
+        PEBBLE's reset after pre-training (B-Pref re-creates the critic): fresh Q-networks and, unless it is the
+        actor's (``share_features_extractor=True``), a fresh features extractor; the target copied from them;
+        fresh Adam state. The actor and the entropy coefficient keep what pre-training taught them.
+        """
+        shared = self.critic.features_extractor if self.critic.share_features_extractor else None
+        for module in self.critic.modules():
+            if hasattr(module, "reset_parameters") and not _belongs_to(module, shared):
+                module.reset_parameters()
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic.optimizer.state.clear()
 
-    def check_episodes_fit_segments(self) -> None:
-        """Raise when every finished episode is shorter than ``segment_length`` (no query can ever be made)."""
+    def warn_short_episodes(self) -> None:
+        """
+        Called when no segment fits in the stored episodes: warn once if the finished ones are all shorter than
+        ``segment_length`` (early-terminating envs, e.g. Hopper's falls). Not an error: longer episodes may come, and
+        the session is tried again a segment later; an env whose step limit is shorter than a segment is refused
+        when it is attached.
+        """
+        if self._warned_short_episodes:
+            return
         buffer = self.real_buffer
         rows = chronological_rows(buffer)
         lengths = []
         for env_idx in range(buffer.n_envs):
             ends = np.flatnonzero(buffer.dones[rows, env_idx] > 0)
             lengths.extend(np.diff(np.concatenate([[-1], ends])).tolist())
-        if lengths and max(lengths) < self.segment_length and len(lengths) >= 2:
-            raise ValueError(
-                f"segment_length={self.segment_length} is longer than every episode so far "
-                f"(longest: {max(lengths)} steps); choose segment_length <= the episode length"
+        if lengths and max(lengths) < self.segment_length:
+            self._warned_short_episodes = True
+            warnings.warn(
+                f"segment_length={self.segment_length} is longer than every episode so far (longest: {max(lengths)} "
+                f"steps, at step {self.num_timesteps}): the feedback session waits until an episode holds a segment "
+                "and is tried again every segment_length steps. If episodes end early for long (e.g. falls), choose a "
+                "smaller segment_length.",
+                stacklevel=2,
             )
 
     def load_replay_buffer(self, path, truncate_last_traj: bool = True) -> None:
@@ -391,7 +520,7 @@ class PEBBLE(SAC):
         self._attach_reward_model()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "reward_model"]
+        return [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

@@ -7,7 +7,7 @@ from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
-from sb3_pride.common.callbacks import DiffusionCallback
+from sb3_pride.pride.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity, split_transitions
 from sb3_pride.common.queries import chronological_rows

@@ -1,0 +1,121 @@
+"""
+Crash safety: an append-only journal of the teacher's answers, and files written whole or not at all.
+
+A preference label costs a person's time; a run may be killed at any moment. ``PreferenceJournal`` appends every
+answer (the pair's reward-model inputs and μ, or a skip) to a JSON-lines file and flushes it to disk before the
+answer is used, so a run resumed from an older checkpoint gets it back instead of asking again.
+``atomic_write_path`` makes a checkpoint replace the previous one only once it is complete.
+"""
+
+import base64
+import contextlib
+import hashlib
+import json
+import os
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional, Union
+
+import numpy as np
+
+
+def query_id(inputs: np.ndarray) -> str:
+    """A query's identity: the SHA-1 of its (2, k, input_dim) float32 reward-model inputs."""
+    return hashlib.sha1(np.ascontiguousarray(inputs, dtype=np.float32).tobytes()).hexdigest()
+
+
+@dataclass
+class JournalEntry:
+    """One answered query: the feedback session (1-based) it was asked in, its inputs and μ (NaN: skipped)."""
+
+    session: int
+    inputs: np.ndarray
+    label: float
+
+    @property
+    def id(self) -> str:
+        return query_id(self.inputs)
+
+
+class PreferenceJournal:
+    """
+    An append-only JSON-lines file of the teacher's answers, one line per query:
+    ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}``.
+
+    :param path: the file (created with its folder on the first answer)
+    """
+
+    def __init__(self, path: Union[str, os.PathLike]):
+        self.path = Path(path)
+
+    def read(self) -> list[JournalEntry]:
+        """Every entry, oldest first; a last line cut by a crash in the middle of a write is ignored."""
+        if not self.path.exists():
+            return []
+        entries = []
+        lines = self.path.read_text().split("\n")
+        for number, line in enumerate(lines, start=1):
+            if not line.strip():
+                continue
+            try:
+                record = json.loads(line)
+            except json.JSONDecodeError:
+                if number == len(lines):  # the torn last line of a killed writer (no newline yet)
+                    break
+                raise ValueError(f"preference_journal {self.path}: line {number} is not JSON") from None
+            inputs = np.frombuffer(base64.b64decode(record["inputs"]), dtype=np.float32).reshape(record["shape"])
+            label = float("nan") if record["label"] is None else float(record["label"])
+            entries.append(JournalEntry(int(record["session"]), inputs.copy(), label))
+        return entries
+
+    def _cut_torn_line(self) -> None:
+        """Cut off a last line that a writer killed mid-line left without its newline."""
+        if not self.path.exists() or self.path.stat().st_size == 0:
+            return
+        with open(self.path, "r+b") as file:
+            file.seek(-1, os.SEEK_END)
+            if file.read(1) != b"\n":
+                file.seek(0)
+                file.truncate(file.read().rfind(b"\n") + 1)
+
+    def append(self, entries: list[JournalEntry]) -> None:
+        """Append ``entries`` and flush them to disk (fsync) before returning."""
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._cut_torn_line()
+        with open(self.path, "a") as file:
+            for entry in entries:
+                inputs = np.ascontiguousarray(entry.inputs, dtype=np.float32)
+                record = {
+                    "session": entry.session,
+                    "id": query_id(inputs),
+                    "label": None if np.isnan(entry.label) else float(entry.label),
+                    "shape": list(inputs.shape),
+                    "inputs": base64.b64encode(inputs.tobytes()).decode("ascii"),
+                }
+                file.write(json.dumps(record) + "\n")
+            file.flush()
+            os.fsync(file.fileno())
+
+
+@contextlib.contextmanager
+def atomic_write_path(path: Union[str, os.PathLike], suffix: Optional[str] = None) -> Iterator[Path]:
+    """
+    A temporary path beside ``path`` to write to; when the block ends without error it is flushed to disk and
+    renamed onto ``path`` (one atomic step), so a reader, or a run killed mid-write, sees the old file or the new
+    one, never half of one. On error the temporary file is removed and ``path`` is untouched.
+
+    :param suffix: appended to ``path`` when it has none (SB3's rule: ".zip" for models, ".pkl" for buffers)
+    """
+    final = Path(path)
+    if final.suffix == "" and suffix:
+        final = final.with_name(f"{final.name}.{suffix}")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    temporary = final.with_name(f".{final.name}.{os.getpid()}.tmp")
+    try:
+        yield temporary
+        with open(temporary, "rb") as file:
+            os.fsync(file.fileno())
+        os.replace(temporary, final)
+    finally:
+        temporary.unlink(missing_ok=True)

@@ -1,0 +1,71 @@
+"""PRIDE's diffusion phase, beside PEBBLE's callbacks; ``PRIDE.learn()`` attaches it itself."""
+
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+from stable_baselines3.common.callbacks import BaseCallback
+
+if TYPE_CHECKING:
+    from sb3_pride.pride.pride import PRIDE
+
+
+class DiffusionCallback(BaseCallback):
+    """
+    PRIDE's diffusion phase (Algorithm 1, lines 22–30): every ``diffusion_interval`` steps, once a reward model
+    exists (so synthetic data never carries an untrained reward) and from ``synthetic_start`` on, fit the diffusion
+    model on the real transitions (s, a, s'), generate, and replace the synthetic buffer with ``synthetic_samples``
+    new transitions (the ``synthetic_keep_quantile`` share the filter trusts most), rewarded by r̂.
+
+    Logs under ``diffusion/``: the loss, train / generate / fidelity seconds, samples per second, samples dropped;
+    with ``fidelity_check``, ``dynamics_error_ratio`` (synthetic next-state error under a one-step dynamics ensemble
+    fitted on the real transitions, over that of real held-out transitions: 1.0 = as consistent as real data),
+    ``dynamics_error``, ``real_dynamics_error``, ``novelty_ratio`` (nearest-real-neighbour distance over real-to-real:
+    ~0 = copies), ``kept_dynamics_error_ratio`` (after filtering) and the marginal ``mean_gap`` / ``std_gap``
+    (blind to the dynamics: for reference only).
+    """
+
+    model: "PRIDE"
+
+    def _on_step(self) -> bool:
+        model = self.model
+        if model.in_pretraining or model.synthetic_ratio == 0 or model.num_timesteps < model.next_diffusion_step:
+            return True
+        model.next_diffusion_step = model.num_timesteps + model.diffusion_interval
+        real = model.transition_vectors()
+        fit = model.diffusion.fit(model.encode(real))
+        start = time.perf_counter()
+        n_draw = int(np.ceil(model.synthetic_samples / model.synthetic_keep_quantile))
+        generated, dropped = model.sanitize(model.generate(real, n_draw))
+        generate_seconds = time.perf_counter() - start
+        start = time.perf_counter()
+        fidelity = model.fidelity(real, generated) if model.fidelity_check else None
+        kept = model.filter_synthetic(generated, model.synthetic_samples)
+        fidelity_seconds = time.perf_counter() - start
+        model.store_synthetic(kept)
+        if model.first_generation_step is None:
+            model.first_generation_step = model.num_timesteps
+        model.diffusion_retrains += 1
+        self.logger.record("diffusion/loss", fit.loss)
+        self.logger.record("diffusion/train_seconds", fit.seconds)
+        self.logger.record("diffusion/generate_seconds", generate_seconds)
+        self.logger.record("diffusion/fidelity_seconds", fidelity_seconds)
+        self.logger.record("diffusion/samples_per_second", n_draw / max(generate_seconds, 1e-9))
+        self.logger.record("diffusion/samples_dropped", dropped)
+        self.logger.record("diffusion/retrains", model.diffusion_retrains)
+        summary = ""
+        if fidelity is not None:
+            for key, value in vars(fidelity).items():
+                self.logger.record(f"diffusion/{key}", value)
+            if len(kept) < len(generated):
+                # under the ensemble already fitted (optimistic under the dynamics filter, which chose them by it)
+                kept_error = model.dynamics.errors(*model.split(kept)).mean()
+                self.logger.record("diffusion/kept_dynamics_error_ratio", kept_error / max(fidelity.real_dynamics_error, 1e-12))
+            summary = f", dynamics error ratio {fidelity.dynamics_error_ratio:.2f}, novelty {fidelity.novelty_ratio:.2f}"
+        if self.verbose > 0:
+            print(
+                f"diffusion retrain {model.diffusion_retrains} at step {model.num_timesteps}: loss {fit.loss:.3f}, "
+                f"fit {fit.seconds:.1f} s, {len(kept)} samples in {generate_seconds:.1f} s ({dropped} dropped){summary}"
+            )
+        return True
+
