@@ -1,0 +1,160 @@
+"""Crash-safe runs (issue 11 §2): the preference journal, checkpoints written whole, and a real SIGKILL + resume."""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import gymnasium as gym
+from stable_baselines3.common import base_class, off_policy_algorithm
+
+from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal
+from sb3_pride.common.teachers import make_teacher
+
+from test_contract import TINY_DIFFUSION
+
+
+class CountingTeacher:
+    """The oracle, counting the queries it is asked."""
+
+    def __init__(self):
+        self.oracle, self.asked = make_teacher("oracle"), 0
+
+    def __call__(self, pairs):
+        self.asked += len(pairs)
+        return self.oracle(pairs)
+
+
+def journal_labels(path) -> np.ndarray:
+    labels = np.array([entry.label for entry in PreferenceJournal(path).read()])
+    return labels[~np.isnan(labels)]
+
+
+def test_a_new_model_takes_the_journals_answers_back_instead_of_asking(tiny_kwargs, tmp_path):
+    journal = tmp_path / "run" / "preferences.jsonl"
+    tiny_kwargs.update(teacher="skip", feedback_interval=100, max_feedback=40, queries_per_session=10)
+    first = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal=journal, **tiny_kwargs)
+    first.learn(450)  # sessions at 300 and 400; the "skip" teacher skips some queries
+    entries = PreferenceJournal(journal).read()
+    assert [entry.session for entry in entries] == [1] * 10 + [2] * 10
+    assert first.journal_entries == 20 and first.feedback_asked == 20
+    np.testing.assert_array_equal(first.preferences.labels, journal_labels(journal))
+    assert first.feedback_labeled == len(journal_labels(journal)) < 20  # skips are journaled, not labeled
+
+    teacher = CountingTeacher()
+    tiny_kwargs.update(teacher=teacher)
+    again = PEBBLE("MlpPolicy", "Pendulum-v1", seed=1, preference_journal=journal, **tiny_kwargs)
+    again.learn(650)  # sessions 1-2 from the journal, 3-4 asked
+    assert teacher.asked == 20 and again.feedback_asked == 40 and again.journal_entries == 40
+    np.testing.assert_array_equal(again.preferences.labels, journal_labels(journal))
+    ids = [entry.id for entry in PreferenceJournal(journal).read()]
+    assert len(set(ids)) == len(ids) == 40  # never the same query twice
+
+
+def test_a_journal_that_does_not_fit_is_refused_when_the_model_is_made(tiny_kwargs, tmp_path):
+    journal = PreferenceJournal(tmp_path / "other.jsonl")
+    journal.append([JournalEntry(1, np.zeros((2, 7, 4), np.float32), 1.0)])
+    with pytest.raises(ValueError, match="preference_journal .* holds pairs of shape"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=journal.path, **tiny_kwargs)
+
+
+def test_a_torn_last_line_is_dropped_and_cut_before_the_next_append(tmp_path):
+    journal = PreferenceJournal(tmp_path / "preferences.jsonl")
+    pair = np.ones((2, 3, 2), np.float32)
+    journal.append([JournalEntry(1, pair, 0.0), JournalEntry(1, 2 * pair, float("nan"))])
+    with open(journal.path, "a") as file:
+        file.write('{"session": 1, "id": "abc", "lab')  # a writer killed mid-line
+    assert [entry.label for entry in journal.read()][:1] == [0.0] and len(journal.read()) == 2
+    journal.append([JournalEntry(2, 3 * pair, 1.0)])
+    entries = journal.read()
+    assert [entry.session for entry in entries] == [1, 1, 2] and np.isnan(entries[1].label)
+    np.testing.assert_array_equal(entries[2].inputs, 3 * pair)
+    assert all(json.loads(line) for line in journal.path.read_text().splitlines())
+
+
+def test_a_save_that_fails_midway_leaves_the_previous_checkpoint(tiny_kwargs, tmp_path, monkeypatch):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.learn(150)
+    model.save(tmp_path / "checkpoint")
+    model.save_replay_buffer(tmp_path / "buffer")
+    model.learn(50, reset_num_timesteps=False)
+
+    def killed_midway(path, *args, **kwargs):
+        Path(path).write_bytes(b"the first bytes of a checkpoint")
+        raise KeyboardInterrupt("killed while writing")
+
+    monkeypatch.setattr(base_class, "save_to_zip_file", killed_midway)
+    monkeypatch.setattr(off_policy_algorithm, "save_to_pkl", killed_midway)
+    with pytest.raises(KeyboardInterrupt):
+        model.save(tmp_path / "checkpoint")
+    with pytest.raises(KeyboardInterrupt):
+        model.save_replay_buffer(tmp_path / "buffer")
+    monkeypatch.undo()
+    assert sorted(path.name for path in tmp_path.iterdir()) == ["buffer.pkl", "checkpoint.zip"]  # no temporary left
+    loaded = PEBBLE.load(tmp_path / "checkpoint")
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    assert loaded.num_timesteps == 150 and loaded.replay_buffer.size() == 150
+
+
+#: a run with a journal and SB3's CheckpointCallback (every 150 steps, replay buffer included); the teacher of the
+#: fifth session (step 600) never answers, as a person gone home: the run is killed while it waits
+WORKER = """
+import time, sys
+from stable_baselines3.common.callbacks import CheckpointCallback
+from sb3_pride import {algo}
+from sb3_pride.common.teachers import make_teacher
+oracle, sessions = make_teacher("oracle"), []
+
+def teacher(pairs):
+    sessions.append(len(pairs))
+    if len(sessions) == 5:
+        time.sleep(600)
+    return oracle(pairs)
+
+model = {algo}("MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, preference_journal="{folder}/preferences.jsonl",
+               **{kwargs})
+model.learn(700, callback=CheckpointCallback(150, "{folder}", save_replay_buffer=True))
+"""
+
+
+@pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
+def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tmp_path, algo):
+    tiny_kwargs.update(learning_starts=100, unsupervised_steps=100, feedback_interval=100, max_feedback=50,
+                       queries_per_session=10)  # fmt: skip
+    if algo is PRIDE:
+        tiny_kwargs.update(TINY_DIFFUSION)
+    script = WORKER.format(algo=algo.__name__, folder=tmp_path, kwargs=repr(tiny_kwargs))
+    child = subprocess.Popen([sys.executable, "-c", textwrap.dedent(script)], stderr=subprocess.PIPE, text=True)
+    journal = tmp_path / "preferences.jsonl"
+    deadline = time.monotonic() + 300
+    # sessions at steps 200, 300, 400, 500; checkpoints at 150, 300, 450: session 4 is journaled, not checkpointed
+    while len(PreferenceJournal(journal).read()) < 40:
+        assert child.poll() is None, child.stderr.read()
+        assert time.monotonic() < deadline, "the worker never reached its fourth feedback session"
+        time.sleep(0.2)
+    time.sleep(1.0)  # let it run on towards session 5, which never gets its answers
+    os.kill(child.pid, signal.SIGKILL)
+    child.wait()
+    checkpoints = sorted(tmp_path.glob("rl_model_*_steps.zip"), key=lambda path: int(path.stem.split("_")[2]))
+    assert [path.name for path in checkpoints] == [f"rl_model_{step}_steps.zip" for step in (150, 300, 450)]
+
+    teacher = CountingTeacher()
+    model = algo.load(checkpoints[-1], env=gym.make("Pendulum-v1"), teacher=teacher)
+    model.load_replay_buffer(tmp_path / "rl_model_replay_buffer_450_steps.pkl")
+    assert model.journal_entries == 30 and len(model.preferences) == 30 and model.num_timesteps == 450
+    model.learn(250, reset_num_timesteps=False)
+    # session 4 (step 500) came back from the journal; only session 5 (step 600) was asked
+    assert teacher.asked == 10
+    assert model.feedback_sessions == 5 and model.feedback_asked == 50 and model.journal_entries == 50
+    np.testing.assert_array_equal(model.preferences.labels, journal_labels(journal))
+    ids = [entry.id for entry in PreferenceJournal(journal).read()]
+    assert len(set(ids)) == len(ids) == 50
+    if algo is PRIDE:
+        assert model.diffusion_retrains >= 3  # the diffusion schedule went on too
