@@ -26,14 +26,14 @@ from pathlib import Path
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import gymnasium as gym  # noqa: E402
-import numpy as np  # noqa: E402
-import torch as th  # noqa: E402
+import gymnasium as gym
+import numpy as np
+import torch as th
 
-import sb3_pride  # noqa: E402,F401  (registers the environments)
-from sb3_pride.common.diffusion import ElucidatedDiffusion  # noqa: E402
-from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions  # noqa: E402
-from sb3_pride.pride.pride import add_states_to_next_states  # noqa: E402
+import sb3_pride  # noqa: F401  (registers the environments)
+from sb3_pride.common.diffusion import ElucidatedDiffusion
+from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions
+from sb3_pride.pride.pride import add_states_to_next_states
 
 
 def collect(n: int, seed: int) -> np.ndarray:
@@ -69,8 +69,12 @@ def main() -> None:
     parser.add_argument("--transitions", type=int, default=20_000)
     parser.add_argument("--samples", type=int, default=10_000, help="synthetic transitions per configuration")
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--representation", choices=["next_state", "delta"], default="next_state",
-                        help="what the generator models: [s, a, s'] (SynthER) or [s, a, s' - s]")
+    parser.add_argument(
+        "--representation",
+        choices=["next_state", "delta"],
+        default="next_state",
+        help="what the generator models: [s, a, s'] (SynthER) or [s, a, s' - s]",
+    )
     parser.add_argument("--only", nargs="*", default=None, help="run only the configurations with these names")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/generator_next_state.json"))
     parser.add_argument("--table", nargs="+", type=Path, help="print the markdown table of these result files and exit")

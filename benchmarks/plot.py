@@ -24,8 +24,8 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
 COLORS = {"pride": "tab:red", "pebble": "tab:blue", "sac": "tab:gray"}
 
@@ -90,9 +90,12 @@ def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, p
         mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
         settings = runs[0]["settings"]
         color = COLORS[settings["algo"]] if settings["algo"] != "pride" or settings["ratio"] == 0.5 else f"C{i + 3}"
-        style = "--" if settings["algo"] == "pride" and settings["feedback"] < max(
-            r[0]["settings"]["feedback"] for r in selected.values()
-        ) else "-"
+        style = (
+            "--"
+            if settings["algo"] == "pride"
+            and settings["feedback"] < max(r[0]["settings"]["feedback"] for r in selected.values())
+            else "-"
+        )
         ax.plot(steps, mean, style, color=color, label=f"{name}, n={len(runs)}")
         ax.fill_between(steps, mean - std, mean + std, color=color, alpha=0.2)
     ax.set_xlabel("environment steps")
@@ -125,7 +128,7 @@ def aggregate(groups, out: Path) -> dict:
         return {}
     point, intervals = bootstrap(scores, lambda x: np.array([metrics.aggregate_iqm(x)]))
     result = {name: {"iqm": float(point[name][0]), "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
-                     "runs": int(len(scores[name]))} for name in scores}  # fmt: skip
+                     "runs": len(scores[name])} for name in scores}  # fmt: skip
     names = sorted(result, key=lambda name: result[name]["iqm"])
     fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(names)))
     for y, name in enumerate(names):
@@ -160,7 +163,9 @@ def improvements(groups) -> dict:
                        and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5]  # fmt: skip
         for rival_name, rival in rivals:
             if min(len(runs), len(rival)) >= 2:
-                pairs[f"{task}: {name} > {rival_name}"] = [final_returns(group)[:, None] for group in (runs, rival)]  # (runs, 1 task)
+                pairs[f"{task}: {name} > {rival_name}"] = [
+                    final_returns(group)[:, None] for group in (runs, rival)
+                ]  # (runs, 1 task)
     if not pairs:
         return {}
     point, intervals = bootstrap(pairs, metrics.probability_of_improvement)
@@ -199,7 +204,9 @@ def summary(groups) -> str:
         success = [run["curve"]["success"][-1] for run in runs]
         success_area = [np.mean(run["curve"]["success"]) for run in runs]
         success_text = "| " if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f} | {np.nanmean(success_area):.2f}"
-        lines.append(f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |")
+        lines.append(
+            f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |"
+        )
     lines += ["", "Probability of improvement (final true return, rliable, 95% bootstrap CI):", "",
               "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
     for key, value in improvements(groups).items():
@@ -236,7 +243,9 @@ def main() -> None:
         if len(ratios) > 1:
             plot_curves(groups, task, lambda s: s["algo"] == "pride", "true_return", "true return",
                         f"{task}: PRIDE's synthetic ratio u", args.out / f"ratio_{task}.png")  # fmt: skip
-        plot_curves(groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png")
+        plot_curves(
+            groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png"
+        )
     text = summary(groups)
     (args.out / "summary.md").write_text(text)
     (args.out / "aggregate.json").write_text(json.dumps(aggregate(groups, args.out), indent=2))

@@ -19,7 +19,8 @@ import subprocess
 import sys
 import time
 from collections import defaultdict
-from typing import Any, Callable
+from typing import Any
+from collections.abc import Callable
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
@@ -131,7 +132,9 @@ def main() -> None:
     print(f"{'peak memory (MB)':22s}" + "".join(f"{r['peak_rss_mb']:10.0f}" for r in results))
     if args.out:
         with open(args.out, "w") as file:
-            json.dump({"env": args.env, "timesteps": args.timesteps, "overrides": OVERRIDES, "results": results}, file, indent=2)
+            json.dump(
+                {"env": args.env, "timesteps": args.timesteps, "overrides": OVERRIDES, "results": results}, file, indent=2
+            )
 
 
 if __name__ == "__main__":

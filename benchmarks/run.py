@@ -98,7 +98,9 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     # SB3's logger to progress.csv: reward-model accuracy and true-reward correlation, diffusion fidelity, losses
     model.set_logger(configure(str(folder), ["csv"]))
-    (folder / "settings.json").write_text(json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs}, indent=2, default=str))
+    (folder / "settings.json").write_text(
+        json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs}, indent=2, default=str)
+    )
     evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
                               log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
     start = time.time()
@@ -128,8 +130,13 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=0, help="override n_timesteps of the YAML (0: keep)")
     parser.add_argument("--eval-freq", type=int, default=5000)
     parser.add_argument("--eval-episodes", type=int, default=5)
-    parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
-                        help="override any constructor argument of the YAML, e.g. gradient_steps=2 (applied to every algo)")
+    parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="override any constructor argument of the YAML, e.g. gradient_steps=2 (applied to every algo)",
+    )
     parser.add_argument("--tag", default="", help="suffix of the run names: tells variants made with --set apart")
     parser.add_argument("--jobs", type=int, default=1, help="runs in parallel (one process each)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/runs")

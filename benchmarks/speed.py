@@ -16,14 +16,14 @@ from collections import defaultdict
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-import numpy as np  # noqa: E402
-import torch as th  # noqa: E402
-from stable_baselines3 import SAC  # noqa: E402
+import numpy as np
+import torch as th
+from stable_baselines3 import SAC
 
-import sb3_pride  # noqa: E402
-from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback  # noqa: E402
-from sb3_pride.pride.callbacks import DiffusionCallback  # noqa: E402
-from sb3_pride.zoo import hyperparams_dir, model_kwargs  # noqa: E402
+import sb3_pride
+from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
+from sb3_pride.pride.callbacks import DiffusionCallback
+from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
 #: the CPU tier (hyperparams/cpu/): 256 × 2 networks, batch 256, one update per step; this benchmark's run is
 #: shorter than the tier's, so pre-training is shorter and the budget smaller

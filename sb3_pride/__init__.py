@@ -14,12 +14,12 @@ register_envs()
 __all__ = [
     "PEBBLE",
     "PRIDE",
+    "TEACHER_PRESETS",
     "DualReplayBuffer",
     "ElucidatedDiffusion",
     "PreferenceReplayBuffer",
-    "SyntheticReplayBuffer",
     "ScriptedTeacher",
-    "TEACHER_PRESETS",
+    "SyntheticReplayBuffer",
     "Teacher",
     "__version__",
 ]

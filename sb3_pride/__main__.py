@@ -3,7 +3,8 @@ A short preference-based training run that shows the whole loop on a CPU:
 
     python -m sb3_pride --algo pride --env sb3_pride/walker-walk-v0 --timesteps 20000
 
-It prints SB3's progress table (feedback, reward-model accuracy and its correlation with the true reward,
+It shows SB3's progress bar and prints its progress table (feedback, reward-model accuracy and its correlation with
+the true reward,
 true episode returns) and, at the end, the true return of the deterministic policy over a few episodes.
 """
 
@@ -13,13 +14,13 @@ import time
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-from stable_baselines3.common.evaluation import evaluate_policy  # noqa: E402
+from stable_baselines3.common.evaluation import evaluate_policy
 
-import torch as th  # noqa: E402
-import yaml  # noqa: E402
+import torch as th
+import yaml
 
-import sb3_pride  # noqa: E402
-from sb3_pride.zoo import hyperparams_dir, model_kwargs  # noqa: E402
+import sb3_pride
+from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
 #: the demo is shorter than a CPU-tier run (hyperparams/cpu/): less pre-training, a smaller budget
 DEMO_OVERRIDES = dict(unsupervised_steps=2000, max_feedback=200, queries_per_session=50)
@@ -34,6 +35,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-episodes", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (small networks: 1 is fastest)")
+    parser.add_argument("--preference-journal", default=None, help="a JSON-lines file that keeps every answer (see README)")
+    parser.add_argument("--no-progress-bar", action="store_true", help="no progress bar (SB3's, with tqdm and rich)")
     args = parser.parse_args()
     th.set_num_threads(args.threads)
 
@@ -42,11 +45,11 @@ def main() -> None:
     with open(config) as file:
         key = args.env if args.env in yaml.safe_load(file) else "sb3_pride/walker-walk-v0"
     _, kwargs = model_kwargs(config, key)
-    kwargs.update(DEMO_OVERRIDES, buffer_size=args.timesteps, teacher=args.teacher)
+    kwargs.update(DEMO_OVERRIDES, buffer_size=args.timesteps, teacher=args.teacher, preference_journal=args.preference_journal)
     algo = {"pride": sb3_pride.PRIDE, "pebble": sb3_pride.PEBBLE}[args.algo]
     model = algo("MlpPolicy", args.env, seed=args.seed, verbose=1, **kwargs)
     start = time.time()
-    model.learn(args.timesteps, log_interval=5)
+    model.learn(args.timesteps, log_interval=5, progress_bar=not args.no_progress_bar)
     mean, std = evaluate_policy(model, model.get_env(), n_eval_episodes=args.eval_episodes, deterministic=True)
     print(
         f"{args.algo} on {args.env}: {args.timesteps} steps in {time.time() - start:.0f} s, "

@@ -10,7 +10,7 @@ Environments for preference-based RL benchmarks, registered with gymnasium on ``
 dm_control and Meta-World are imported only when an environment is made.
 """
 
-from typing import Any, Optional
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
@@ -84,7 +84,7 @@ def make_dm_control(domain_task: str, **kwargs) -> gym.Env:
     return flatten_observations(gym.make(f"dm_control/{domain_task}-v0", **kwargs))
 
 
-def make_metaworld(env_name: str, seed: Optional[int] = None, **kwargs) -> gym.Env:
+def make_metaworld(env_name: str, seed: int | None = None, **kwargs) -> gym.Env:
     """A Meta-World v3 MT1 task, e.g. ``"button-press-v3"``: 500 steps, float32 obs, ``is_success`` in info."""
     import metaworld
 
@@ -105,13 +105,13 @@ def register_envs() -> None:
     for task in DM_CONTROL_TASKS:
         env_id = f"{NAMESPACE}/{task}-v0"
         if env_id not in gym.registry:
-            gym.register(env_id, entry_point=make_dm_control, kwargs={"domain_task": task})
+            gym.register(env_id, entry_point=make_dm_control, kwargs={"domain_task": task})  # type: ignore[arg-type]
     for task in METAWORLD_TASKS:
         env_id = f"{NAMESPACE}/{task}"
         if env_id not in gym.registry:
             gym.register(
                 env_id,
-                entry_point=make_metaworld,
+                entry_point=make_metaworld,  # type: ignore[arg-type]
                 kwargs={"env_name": task},
                 max_episode_steps=METAWORLD_EPISODE_STEPS,
             )

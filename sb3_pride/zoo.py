@@ -15,7 +15,7 @@ import functools
 import runpy
 import sys
 from pathlib import Path
-from typing import Any, Optional
+from typing import Any
 
 import yaml
 
@@ -27,14 +27,26 @@ ZOO_ALGOS = {"pride": PRIDE, "pebble": PEBBLE}
 
 def hyperparams_dir() -> Path:
     """The shipped hyperparameter files: the repository's ``hyperparams/`` or, installed, ``share/sb3_pride``."""
-    for candidate in (Path(__file__).resolve().parent.parent / "hyperparams", Path(sys.prefix) / "share" / "sb3_pride" / "hyperparams"):
+    for candidate in (
+        Path(__file__).resolve().parent.parent / "hyperparams",
+        Path(sys.prefix) / "share" / "sb3_pride" / "hyperparams",
+    ):
         if candidate.is_dir():
             return candidate
     raise FileNotFoundError("sb3_pride's hyperparams/ folder was not found; pass -conf explicitly")
 
 
 #: rl-zoo3 keys that are not constructor arguments
-ZOO_ONLY_KEYS = ("n_timesteps", "env_wrapper", "monitor_kwargs", "normalize", "n_envs", "frame_stack", "callback", "vec_env_wrapper")
+ZOO_ONLY_KEYS = (
+    "n_timesteps",
+    "env_wrapper",
+    "monitor_kwargs",
+    "normalize",
+    "n_envs",
+    "frame_stack",
+    "callback",
+    "vec_env_wrapper",
+)
 
 
 def model_kwargs(config: Path, env_id: str) -> tuple[int, dict[str, Any]]:
@@ -120,17 +132,17 @@ def register(inference: bool = False) -> None:
 
     gym.register_envs(shimmy)  # the dm_control/... ids
     for name, algo in ZOO_ALGOS.items():
-        rl_zoo3.ALGOS[name] = _InferenceLoader(algo) if inference else algo  # type: ignore[assignment]
+        rl_zoo3.ALGOS[name] = _InferenceLoader(algo) if inference else algo  # type: ignore[assignment,arg-type]
     hpo.HYPERPARAMS_SAMPLER.update(pebble=sample_pebble_params, pride=sample_pride_params)
-    hpo.HYPERPARAMS_CONVERTER.update(pebble=convert_params, pride=convert_params)
+    hpo.HYPERPARAMS_CONVERTER.update(pebble=convert_params, pride=convert_params)  # type: ignore[arg-type]
     import rl_zoo3.train
 
     if not getattr(rl_zoo3.train.ExperimentManager, "continues_step_count", False):
-        rl_zoo3.train.ExperimentManager = _continue_step_count(rl_zoo3.train.ExperimentManager)
-        rl_zoo3.train.ExperimentManager.continues_step_count = True
+        rl_zoo3.train.ExperimentManager = _continue_step_count(rl_zoo3.train.ExperimentManager)  # type: ignore[misc,assignment]
+        rl_zoo3.train.ExperimentManager.continues_step_count = True  # type: ignore[attr-defined]
 
 
-def _argument(argv: list[str], *names: str) -> Optional[str]:
+def _argument(argv: list[str], *names: str) -> str | None:
     for i, arg in enumerate(argv):
         for name in names:
             if arg == name and i + 1 < len(argv):
@@ -140,7 +152,7 @@ def _argument(argv: list[str], *names: str) -> Optional[str]:
     return None
 
 
-def default_config(argv: list[str]) -> Optional[str]:
+def default_config(argv: list[str]) -> str | None:
     """Our hyperparameter file for ``--algo`` if ``-conf`` is absent and the file has an entry for ``--env``."""
     if _argument(argv, "-conf", "--conf-file") is not None:
         return None
@@ -155,7 +167,7 @@ def default_config(argv: list[str]) -> Optional[str]:
     return str(path) if env in entries or algo in ZOO_ALGOS else None
 
 
-def main(argv: Optional[list[str]] = None) -> None:
+def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv:
         print(__doc__)

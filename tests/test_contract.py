@@ -1,6 +1,10 @@
 """SB3's contract, checked with environments this project did not write (issue 11): float64 gymnasium MuJoCo envs,
 early-terminating envs, SB3's buffer attributes, the critic reset, SAC's arguments, set_env/load checks, episode ends."""
 
+import os
+import subprocess
+import sys
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -13,8 +17,15 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
 
 #: a diffusion phase small enough for tests, retraining from the first feedback session on
-TINY_DIFFUSION = dict(diffusion_interval=200, synthetic_samples=500, diffusion_width=32, diffusion_blocks=1,
-                      diffusion_train_steps=50, diffusion_sample_steps=4, dynamics_kwargs=dict(width=16, train_steps=20))  # fmt: skip
+TINY_DIFFUSION = dict(
+    diffusion_interval=200,
+    synthetic_samples=500,
+    diffusion_width=32,
+    diffusion_blocks=1,
+    diffusion_train_steps=50,
+    diffusion_sample_steps=4,
+    dynamics_kwargs=dict(width=16, train_steps=20),
+)
 
 
 @pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
@@ -90,11 +101,14 @@ def test_critic_reset_renews_the_critics_own_features_extractor(tiny_kwargs, sha
     model.learn(250)  # pre-training: the critic (and its extractor) learned r_int
     critic_extractor, actor = parameters(model.critic.features_extractor), parameters(model.actor)
     model.reset_critic()
-    renewed = [not th.equal(before, after) for before, after in zip(critic_extractor, parameters(model.critic.features_extractor))]
+    renewed = [
+        not th.equal(before, after)
+        for before, after in zip(critic_extractor, parameters(model.critic.features_extractor), strict=True)
+    ]
     assert all(renewed) is not share  # its own extractor is renewed; the actor's (shared) one is kept
-    for before, after in zip(actor, parameters(model.actor)):
+    for before, after in zip(actor, parameters(model.actor), strict=True):
         assert th.equal(before, after)
-    for critic, target in zip(model.critic.state_dict().values(), model.critic_target.state_dict().values()):
+    for critic, target in zip(model.critic.state_dict().values(), model.critic_target.state_dict().values(), strict=True):
         assert th.equal(critic, target)
 
 
@@ -104,7 +118,7 @@ def test_sac_arguments_that_cannot_work_are_refused():
     PEBBLE("MlpPolicy", "Pendulum-v1", n_steps=1)  # SAC's default is accepted
     image = spaces.Box(0, 255, (16, 16, 3), np.uint8)
     env = gym.wrappers.TransformObservation(gym.make("Pendulum-v1"), lambda obs: np.zeros((16, 16, 3), np.uint8), image)
-    with pytest.raises(ValueError, match="image observations .* not supported"):
+    with pytest.raises(ValueError, match=r"image observations .* not supported"):
         PRIDE("MlpPolicy", env)
 
 
@@ -144,3 +158,14 @@ def test_episode_ends_of_two_envs_and_true_terminations_are_kept():
     buffer.dones[last, 1], buffer.timeouts[last, 1] = 1, 0  # as if env 1 had terminated there
     buffer.end_episodes()
     assert list(buffer.dones[last]) == [1, 1] and list(buffer.timeouts[last]) == [1, 0]
+
+
+def test_the_demo_shows_a_progress_bar(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "sb3_pride", "--algo", "pebble", "--env", "Pendulum-v1", "--timesteps", "300",
+         "--eval-episodes", "1"],
+        cwd=tmp_path, capture_output=True, text=True, env={**os.environ, "MUJOCO_GL": "disable"},
+    )  # fmt: skip
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert "300/300" in result.stdout + result.stderr  # SB3's progress bar (tqdm + rich), at its end
+    assert "true return of the final policy" in result.stdout

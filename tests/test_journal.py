@@ -61,7 +61,7 @@ def test_a_new_model_takes_the_journals_answers_back_instead_of_asking(tiny_kwar
 def test_a_journal_that_does_not_fit_is_refused_when_the_model_is_made(tiny_kwargs, tmp_path):
     journal = PreferenceJournal(tmp_path / "other.jsonl")
     journal.append([JournalEntry(1, np.zeros((2, 7, 4), np.float32), 1.0)])
-    with pytest.raises(ValueError, match="preference_journal .* holds pairs of shape"):
+    with pytest.raises(ValueError, match=r"preference_journal .* holds pairs of shape"):
         PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=journal.path, **tiny_kwargs)
 
 

@@ -106,9 +106,9 @@ def test_critic_reset_keeps_actor(tiny_kwargs):
     actor = [p.clone() for p in model.actor.parameters()]
     critic = [p.clone() for p in model.critic.parameters()]
     model.reset_critic()
-    assert all(th.equal(a, b) for a, b in zip(actor, model.actor.parameters()))
-    assert not any(th.equal(a, b) for a, b in zip(critic, model.critic.parameters()))
-    for p, q in zip(model.critic.parameters(), model.critic_target.parameters()):
+    assert all(th.equal(a, b) for a, b in zip(actor, model.actor.parameters(), strict=True))
+    assert not any(th.equal(a, b) for a, b in zip(critic, model.critic.parameters(), strict=True))
+    for p, q in zip(model.critic.parameters(), model.critic_target.parameters(), strict=True):
         assert th.equal(p, q)
     assert len(model.critic.optimizer.state) == 0
 
@@ -138,7 +138,7 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
     import shimmy
 
     gym.register_envs(shimmy)
-    with pytest.raises(ValueError, match="Dict observation space.*flatten"):
+    with pytest.raises(ValueError, match=r"Dict observation space.*flatten"):
         PEBBLE("MlpPolicy", gym.make("dm_control/cartpole-balance-v0"))
     with pytest.raises(ValueError, match="action space"):
         PEBBLE("MlpPolicy", "CartPole-v1")

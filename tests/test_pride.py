@@ -20,7 +20,9 @@ TINY_DIFFUSION = dict(
 def marked_dual_buffer(n_envs=2, ratio=0.25):
     """Real observations are +1, synthetic ones -1, so a minibatch tells where each row came from."""
     space = spaces.Box(-np.inf, np.inf, (3,), np.float32)
-    buffer = DualReplayBuffer(200, space, spaces.Box(-1, 1, (2,)), n_envs=n_envs, synthetic_buffer_size=500, synthetic_ratio=ratio)
+    buffer = DualReplayBuffer(
+        200, space, spaces.Box(-1, 1, (2,)), n_envs=n_envs, synthetic_buffer_size=500, synthetic_ratio=ratio
+    )
     for _ in range(50):
         obs = np.ones((n_envs, 3), np.float32)
         buffer.add(obs, obs, np.zeros((n_envs, 2)), np.ones(n_envs), np.zeros(n_envs), [{}] * n_envs)
@@ -100,7 +102,7 @@ def test_ratio_zero_trains_exactly_like_pebble(tiny_kwargs):
     pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=3, **tiny_kwargs).learn(700)
     pride = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, synthetic_ratio=0.0, **tiny_kwargs, **TINY_DIFFUSION).learn(700)
     assert pride.diffusion_retrains == 0 and pride.replay_buffer.synthetic.size() == 0
-    for p, q in zip(pebble.policy.parameters(), pride.policy.parameters()):
+    for p, q in zip(pebble.policy.parameters(), pride.policy.parameters(), strict=True):
         assert th.equal(p, q)
     np.testing.assert_array_equal(pebble.replay_buffer.rewards, pride.replay_buffer.real.rewards)
 
@@ -148,7 +150,8 @@ def test_delayed_start_and_ramp_of_u(tiny_kwargs):
     assert model.replay_buffer.n_synthetic(model.batch_size) == 16
     model.learn(200, reset_num_timesteps=False)
     assert model.current_synthetic_ratio() == 0.5
-    # a new learn() that restarts the step count keeps the distances: the ramp stays over, the next retrain stays 250 steps away
+    # a new learn() that restarts the step count keeps the distances: the ramp stays over, the next retrain stays
+    # 250 steps away
     model.learn(10, reset_num_timesteps=True)
     assert model.first_generation_step == 600 - 950 and model.next_diffusion_step == 1200 - 950
 

@@ -31,7 +31,7 @@ def test_ensemble_trained_on_200_oracle_labels_ranks_held_out_transitions():
     dataset.add(np.concatenate([obs, actions], axis=-1), labels)
 
     model = RewardEnsemble(obs_dim, act_dim, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
-    loss, accuracy, epochs = model.train_epochs(dataset, max_epochs=300, batch_size=64, rng=rng)
+    _loss, accuracy, epochs = model.train_epochs(dataset, max_epochs=300, batch_size=64, rng=rng)
     assert accuracy > 0.9 and epochs < 300  # early stop at 97% training accuracy
 
     held_obs = rng.normal(size=(2000, obs_dim)).astype(np.float32)

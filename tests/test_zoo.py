@@ -42,7 +42,10 @@ def zoo(*args, cwd, gl="disable"):
 
 def egl_renders() -> bool:
     """Whether MuJoCo can render off-screen here (record_video needs it)."""
-    code = "import gymnasium as gym, sb3_pride; e = gym.make('sb3_pride/walker-walk-v0', render_mode='rgb_array'); e.reset(); e.render()"
+    code = (
+        "import gymnasium as gym, sb3_pride; "
+        "e = gym.make('sb3_pride/walker-walk-v0', render_mode='rgb_array'); e.reset(); e.render()"
+    )
     env = {**os.environ, "MUJOCO_GL": "egl"}
     return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True).returncode == 0
 

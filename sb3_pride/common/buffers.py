@@ -1,6 +1,6 @@
 """Replay buffers: the true reward kept aside for the teacher, r̂ (or r_int) for the learner."""
 
-from typing import Callable, Optional
+from collections.abc import Callable
 
 import numpy as np
 import torch as th
@@ -62,8 +62,8 @@ class PreferenceReplayBuffer(ReplayBuffer):
             handle_timeout_termination=handle_timeout_termination,
         )
         self.true_rewards = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
-        self.reward_fn: Optional[RewardFn] = None
-        self.intrinsic_reward: Optional[IntrinsicRewardFn] = None
+        self.reward_fn: RewardFn | None = None
+        self.intrinsic_reward: IntrinsicRewardFn | None = None
 
     def __getstate__(self) -> dict:
         # The reward model and the entropy estimator belong to the algorithm, which re-attaches them
@@ -99,12 +99,13 @@ class PreferenceReplayBuffer(ReplayBuffer):
         if self.handle_timeout_termination:
             self.timeouts[last, running] = 1
 
-    def sample(self, batch_size: int, env: Optional[VecNormalize] = None) -> ReplayBufferSamples:
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         samples = super().sample(batch_size, env=env)
         if self.intrinsic_reward is None:
             return samples
         # Unsupervised pre-training: the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
         all_obs = self._normalize_obs(self.observations[: self.size()].reshape(-1, *self.obs_shape), env)
+        assert isinstance(all_obs, np.ndarray)  # flat Box observations (PEBBLE checks the env)
         rewards = self.intrinsic_reward(samples.observations, self.to_torch(all_obs, copy=False))
         return samples._replace(rewards=rewards.to(samples.rewards.dtype))
 
@@ -122,21 +123,41 @@ class SyntheticReplayBuffer(ReplayBuffer):
     ``extend()`` appends to the ring instead.
     """
 
-    def __init__(self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Space, device: th.device | str = "auto"):
-        super().__init__(buffer_size, observation_space, action_space, device=device, n_envs=1, handle_timeout_termination=False)
+    def __init__(
+        self, buffer_size: int, observation_space: spaces.Space, action_space: spaces.Space, device: th.device | str = "auto"
+    ):
+        super().__init__(
+            buffer_size, observation_space, action_space, device=device, n_envs=1, handle_timeout_termination=False
+        )
 
-    def replace(self, observations: np.ndarray, actions: np.ndarray, next_observations: np.ndarray, dones: np.ndarray, rewards: np.ndarray) -> None:
+    def replace(
+        self,
+        observations: np.ndarray,
+        actions: np.ndarray,
+        next_observations: np.ndarray,
+        dones: np.ndarray,
+        rewards: np.ndarray,
+    ) -> None:
         """Empty the buffer, then write the generation (the last ``buffer_size`` if it is larger)."""
         self.pos, self.full = 0, False
         self.extend(observations, actions, next_observations, dones, rewards)
 
-    def extend(self, observations: np.ndarray, actions: np.ndarray, next_observations: np.ndarray, dones: np.ndarray, rewards: np.ndarray) -> None:
+    def extend(
+        self,
+        observations: np.ndarray,
+        actions: np.ndarray,
+        next_observations: np.ndarray,
+        dones: np.ndarray,
+        rewards: np.ndarray,
+    ) -> None:
         """Append ``len(observations)`` transitions in one vectorized write per array, wrapping around the ring."""
         # more than fits: only the last buffer_size are kept
         columns = tuple(column[-self.buffer_size :] for column in (observations, actions, next_observations, dones, rewards))
         n = len(columns[0])
         rows = (self.pos + np.arange(n)) % self.buffer_size
-        for target, column in zip((self.observations, self.actions, self.next_observations, self.dones, self.rewards), columns):
+        for target, column in zip(  # noqa: B905 (the same five columns on both sides)
+            (self.observations, self.actions, self.next_observations, self.dones, self.rewards), columns
+        ):
             target[rows, 0] = column.reshape(n, *target.shape[2:])
         self.full = self.full or self.pos + n >= self.buffer_size
         self.pos = int((self.pos + n) % self.buffer_size)
@@ -239,9 +260,9 @@ class DualReplayBuffer(ReplayBuffer):
 
     def n_synthetic(self, batch_size: int) -> int:
         """Synthetic transitions in a minibatch of ``batch_size``: round(u · B), 0 while B_syn is empty."""
-        return int(round(self.synthetic_ratio * batch_size)) if self.synthetic.size() > 0 else 0
+        return round(self.synthetic_ratio * batch_size) if self.synthetic.size() > 0 else 0
 
-    def sample(self, batch_size: int, env: Optional[VecNormalize] = None) -> ReplayBufferSamples:
+    def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         n_synthetic = self.n_synthetic(batch_size)
         if n_synthetic == 0:
             return self.real.sample(batch_size, env=env)
@@ -249,9 +270,9 @@ class DualReplayBuffer(ReplayBuffer):
         if n_synthetic == batch_size:
             return synthetic
         real = self.real.sample(batch_size - n_synthetic, env=env)
-        return ReplayBufferSamples(*(
-            th.cat([s, r]) if s is not None else None for s, r in zip(synthetic, real)
-        ))  # fmt: skip
+        # field by field, synthetic rows first; a field SB3 leaves None (n-step discounts) stays None
+        fields = [th.cat([s, r]) if s is not None and r is not None else None for s, r in zip(synthetic, real, strict=True)]
+        return ReplayBufferSamples(*fields)  # type: ignore[arg-type]
 
-    def _get_samples(self, batch_inds: np.ndarray, env: Optional[VecNormalize] = None) -> ReplayBufferSamples:
+    def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
         return self.real._get_samples(batch_inds, env=env)

@@ -9,7 +9,6 @@ import copy
 import math
 import time
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 import torch as th
@@ -42,13 +41,13 @@ class ResidualMLPDenoiser(nn.Module):
     :param fourier_features: random Fourier features of the noise level (SynthER: 16)
     """
 
+    frequencies: th.Tensor
+
     def __init__(self, dim: int, width: int = 256, n_blocks: int = 3, dim_t: int = 128, fourier_features: int = 16):
         super().__init__()
         # frozen random frequencies: the embedding is [t, sin(2π w t), cos(2π w t)]
         self.register_buffer("frequencies", th.randn(fourier_features // 2))
-        self.time_mlp = nn.Sequential(
-            nn.Linear(2 * (fourier_features // 2) + 1, dim_t), nn.SiLU(), nn.Linear(dim_t, dim_t)
-        )
+        self.time_mlp = nn.Sequential(nn.Linear(2 * (fourier_features // 2) + 1, dim_t), nn.SiLU(), nn.Linear(dim_t, dim_t))
         self.input_projection = nn.Linear(dim, dim_t)
         self.body = nn.Sequential(nn.Linear(dim_t, width), *[ResidualBlock(width) for _ in range(n_blocks)], nn.ReLU())
         self.output_projection = nn.Linear(width, dim)
@@ -100,6 +99,9 @@ class ElucidatedDiffusion(nn.Module):
     :param device: torch device
     """
 
+    mean: th.Tensor
+    std: th.Tensor
+
     def __init__(
         self,
         dim: int,
@@ -125,7 +127,7 @@ class ElucidatedDiffusion(nn.Module):
         s_tmin: float = 0.05,
         s_tmax: float = 50.0,
         s_noise: float = 1.003,
-        seed: Optional[int] = None,
+        seed: int | None = None,
         device: th.device | str = "auto",
     ):
         super().__init__()
@@ -148,7 +150,10 @@ class ElucidatedDiffusion(nn.Module):
         self.s_churn, self.s_tmin, self.s_tmax, self.s_noise = s_churn, s_tmin, s_tmax, s_noise
         self.device_ = get_device(device)
         self.generator = th.Generator(device=self.device_)
-        self.generator.manual_seed(seed if seed is not None else int(np.random.SeedSequence().entropy % 2**63))
+        if seed is None:
+            self.generator.seed()  # a non-deterministic seed
+        else:
+            self.generator.manual_seed(seed)
         self.rng = np.random.default_rng(seed)
         self.ema = self._new_denoiser()
         self.register_buffer("mean", th.zeros(dim))
@@ -186,7 +191,7 @@ class ElucidatedDiffusion(nn.Module):
         self.std.copy_(th.as_tensor(std, dtype=th.float32))
 
     # training ------------------------------------------------------------------------------------------------
-    def fit(self, data: np.ndarray, steps: Optional[int] = None) -> FitInfo:
+    def fit(self, data: np.ndarray, steps: int | None = None) -> FitInfo:
         """
         Train on ``data`` (N, dim): minibatches drawn uniformly, AdamW with a cosine schedule and gradient
         clipping at 1, EMA of the weights. Refits the normalizer first.
@@ -227,11 +232,11 @@ class ElucidatedDiffusion(nn.Module):
     def _update_ema(self, net: nn.Module, n_updates: int) -> None:
         # decay warms up as 1 - (1 + n)^(-2/3), capped at ema_decay
         decay = min(self.ema_decay, 1.0 - (1.0 + n_updates) ** (-2.0 / 3.0))
-        for ema_param, param in zip(self.ema.parameters(), net.parameters()):
+        for ema_param, param in zip(self.ema.parameters(), net.parameters(), strict=True):
             ema_param.lerp_(param, 1.0 - decay)
 
     # sampling ------------------------------------------------------------------------------------------------
-    def noise_levels(self, sigma_max: Optional[float] = None) -> th.Tensor:
+    def noise_levels(self, sigma_max: float | None = None) -> th.Tensor:
         """Karras schedule σ_0 > … > σ_{N−1} from ``sigma_max`` (default: the model's σ_max), then σ_N = 0."""
         ramp = th.linspace(0, 1, self.sample_steps, device=self.device_)
         inv_rho = 1.0 / self.rho
@@ -253,11 +258,15 @@ class ElucidatedDiffusion(nn.Module):
         ``start_sigma`` stays close to real data; ``start_sigma = σ_max`` forgets the anchor.
         """
         if not self.sigma_min < start_sigma <= self.sigma_max:
-            raise ValueError(f"start_sigma must be in (sigma_min={self.sigma_min}, sigma_max={self.sigma_max}], got {start_sigma}")
-        anchors = self._normalize(anchors)
+            raise ValueError(
+                f"start_sigma must be in (sigma_min={self.sigma_min}, sigma_max={self.sigma_max}], got {start_sigma}"
+            )
+        normalized = self._normalize(anchors)
         return self._sample_chunked(
-            len(anchors),
-            lambda start, size: self._heun(anchors[start : start + size] + start_sigma * self._noise((size, self.dim)), start_sigma),
+            len(normalized),
+            lambda start, size: self._heun(
+                normalized[start : start + size] + start_sigma * self._noise((size, self.dim)), start_sigma
+            ),
         )
 
     @th.no_grad()
@@ -268,13 +277,13 @@ class ElucidatedDiffusion(nn.Module):
         are reset to the anchor noised to the current level, so the rest is denoised consistently with them, e.g.
         s' given a real (s, a).
         """
-        anchors = self._normalize(anchors)
+        normalized = self._normalize(anchors)
         mask = th.zeros(self.dim, dtype=th.bool, device=self.device_)
         mask[th.as_tensor(np.asarray(known), device=self.device_)] = True
         return self._sample_chunked(
-            len(anchors),
+            len(normalized),
             lambda start, size: self._heun(
-                self._noise((size, self.dim)) * self.sigma_max, known=(mask, anchors[start : start + size])
+                self._noise((size, self.dim)) * self.sigma_max, known=(mask, normalized[start : start + size])
             ),
         )
 
@@ -294,7 +303,7 @@ class ElucidatedDiffusion(nn.Module):
         return samples.cpu().numpy()
 
     def _heun(
-        self, x: th.Tensor, sigma_max: Optional[float] = None, known: Optional[tuple[th.Tensor, th.Tensor]] = None
+        self, x: th.Tensor, sigma_max: float | None = None, known: tuple[th.Tensor, th.Tensor] | None = None
     ) -> th.Tensor:
         """EDM's stochastic sampler (Karras et al., 2022, Algorithm 2) from x at σ_0, optionally with known dims."""
         n = len(x)

@@ -6,7 +6,6 @@ reference only: they read excellent for samples whose next states are wrong by t
 """
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 import torch as th
@@ -41,6 +40,11 @@ class DynamicsEnsemble(nn.Module):
     :param device: torch device
     """
 
+    input_mean: th.Tensor
+    input_std: th.Tensor
+    delta_mean: th.Tensor
+    delta_std: th.Tensor
+
     def __init__(
         self,
         obs_dim: int,
@@ -51,12 +55,18 @@ class DynamicsEnsemble(nn.Module):
         batch_size: int = 256,
         learning_rate: float = 1e-3,
         holdout_fraction: float = 0.2,
-        seed: Optional[int] = None,
+        seed: int | None = None,
         device: th.device | str = "auto",
     ):
         super().__init__()
-        check_positive_ints(obs_dim=obs_dim, action_dim=action_dim, n_members=n_members, width=width, train_steps=train_steps,
-                            batch_size=batch_size)
+        check_positive_ints(
+            obs_dim=obs_dim,
+            action_dim=action_dim,
+            n_members=n_members,
+            width=width,
+            train_steps=train_steps,
+            batch_size=batch_size,
+        )
         if learning_rate <= 0:
             raise ValueError(f"learning_rate must be > 0, got {learning_rate}")
         if not 0.0 < holdout_fraction < 1.0:
@@ -71,9 +81,19 @@ class DynamicsEnsemble(nn.Module):
         with th.random.fork_rng(devices=[]):
             th.manual_seed(int(self.rng.integers(2**62)))
             self.members = EnsembleMLP(
-                n_members, obs_dim + action_dim, (width, width), obs_dim, output_activation=None, hidden_activation=nn.functional.silu
+                n_members,
+                obs_dim + action_dim,
+                (width, width),
+                obs_dim,
+                output_activation=None,
+                hidden_activation=nn.functional.silu,
             )
-        for name, size in (("input_mean", obs_dim + action_dim), ("input_std", obs_dim + action_dim), ("delta_mean", obs_dim), ("delta_std", obs_dim)):
+        for name, size in (
+            ("input_mean", obs_dim + action_dim),
+            ("input_std", obs_dim + action_dim),
+            ("delta_mean", obs_dim),
+            ("delta_std", obs_dim),
+        ):
             self.register_buffer(name, th.zeros(size) if "mean" in name else th.ones(size))
         self.optimizer = th.optim.Adam(self.parameters(), lr=learning_rate)
         self.to(self.device_)
@@ -97,7 +117,7 @@ class DynamicsEnsemble(nn.Module):
         if n < 10:
             raise ValueError(f"the dynamics ensemble needs at least 10 transitions, got {n}")
         order = self.rng.permutation(n)
-        n_holdout = max(1, int(round(self.holdout_fraction * n)))
+        n_holdout = max(1, round(self.holdout_fraction * n))
         self.holdout, train = order[:n_holdout], order[n_holdout:]
         inputs = np.concatenate([obs[train], actions[train]], axis=-1)
         deltas = next_obs[train] - obs[train]
@@ -150,7 +170,11 @@ class Fidelity:
 
 def split_transitions(vectors: np.ndarray, obs_dim: int, action_dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(s, a, s') of transition vectors [s, a, s', ...] (any trailing column, e.g. a terminal flag, is left out)."""
-    return vectors[:, :obs_dim], vectors[:, obs_dim : obs_dim + action_dim], vectors[:, obs_dim + action_dim : 2 * obs_dim + action_dim]
+    return (
+        vectors[:, :obs_dim],
+        vectors[:, obs_dim : obs_dim + action_dim],
+        vectors[:, obs_dim + action_dim : 2 * obs_dim + action_dim],
+    )
 
 
 def marginal_gaps(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float]:
@@ -197,4 +221,6 @@ def measure_fidelity(
     if len(reference) > 20_000:  # bound the k-NN cost: 20k random training transitions stand for all
         reference = reference[dynamics.rng.choice(len(reference), size=20_000, replace=False)]
     novelty = novelty_ratio(reference, holdout, synthetic, dynamics.rng)
-    return Fidelity(synthetic_error, real_error, synthetic_error / max(real_error, 1e-12), novelty, *marginal_gaps(real, synthetic))
+    return Fidelity(
+        synthetic_error, real_error, synthetic_error / max(real_error, 1e-12), novelty, *marginal_gaps(real, synthetic)
+    )

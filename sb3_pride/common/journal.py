@@ -15,7 +15,6 @@ import os
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional, Union
 
 import numpy as np
 
@@ -46,7 +45,7 @@ class PreferenceJournal:
     :param path: the file (created with its folder on the first answer)
     """
 
-    def __init__(self, path: Union[str, os.PathLike]):
+    def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
 
     def read(self) -> list[JournalEntry]:
@@ -99,7 +98,7 @@ class PreferenceJournal:
 
 
 @contextlib.contextmanager
-def atomic_write_path(path: Union[str, os.PathLike], suffix: Optional[str] = None) -> Iterator[Path]:
+def atomic_write_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """
     A temporary path beside ``path`` to write to; when the block ends without error it is flushed to disk and
     renamed onto ``path`` (one atomic step), so a reader, or a run killed mid-write, sees the old file or the new

@@ -1,7 +1,6 @@
 """Segment pairs for preference queries: where segments may start, how candidates are chosen."""
 
 from dataclasses import dataclass
-from typing import Optional
 
 import numpy as np
 import torch as th
@@ -78,7 +77,7 @@ def sample_segment_pairs(
     segment_length: int,
     max_episodes: int,
     rng: np.random.Generator,
-) -> Optional[SegmentPairs]:
+) -> SegmentPairs | None:
     """
     ``n_pairs`` pairs of segments drawn uniformly (with replacement) from the valid starts of ``segment_starts``.
 

@@ -1,7 +1,8 @@
 """The reward model r̂: an ensemble of MLPs on (s, a) trained on preferences with the Bradley–Terry loss."""
 
+import itertools
 import math
-from typing import Callable, Optional
+from collections.abc import Callable
 
 import numpy as np
 import torch as th
@@ -62,7 +63,7 @@ class EnsembleMLP(nn.Module):
         input_dim: int,
         net_arch: tuple[int, ...],
         output_dim: int = 1,
-        output_activation: Optional[Callable[[th.Tensor], th.Tensor]] = th.tanh,
+        output_activation: Callable[[th.Tensor], th.Tensor] | None = th.tanh,
         hidden_activation: Callable[[th.Tensor], th.Tensor] = F.leaky_relu,
     ):
         super().__init__()
@@ -71,15 +72,16 @@ class EnsembleMLP(nn.Module):
         dims = [input_dim, *net_arch, output_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
-        for fan_in, fan_out in zip(dims[:-1], dims[1:]):
+        for fan_in, fan_out in itertools.pairwise(dims):
             bound = 1.0 / math.sqrt(fan_in)  # nn.Linear's default: U(-1/sqrt(fan_in), 1/sqrt(fan_in))
             self.weights.append(nn.Parameter(th.empty(n_members, fan_in, fan_out).uniform_(-bound, bound)))
             self.biases.append(nn.Parameter(th.empty(n_members, 1, fan_out).uniform_(-bound, bound)))
 
     def forward(self, x: th.Tensor) -> th.Tensor:
-        """(members, N, input_dim) -> (members, N, output_dim), hidden layers ``hidden_activation``, output ``output_activation``."""
+        """(members, N, input_dim) -> (members, N, output_dim): ``hidden_activation`` after hidden layers, then
+        ``output_activation``."""
         last = len(self.weights) - 1
-        for i, (weight, bias) in enumerate(zip(self.weights, self.biases)):
+        for i, (weight, bias) in enumerate(zip(self.weights, self.biases, strict=True)):
             x = th.baddbmm(bias, x, weight)
             if i < last:
                 x = self.hidden_activation(x)
@@ -153,7 +155,7 @@ class RewardEnsemble(nn.Module):
         max_epochs: int,
         batch_size: int = 128,
         target_accuracy: float = 0.97,
-        rng: Optional[np.random.Generator] = None,
+        rng: np.random.Generator | None = None,
     ) -> tuple[float, float, int]:
         """
         Train on D for up to ``max_epochs`` epochs, each member on its own shuffling of D (the loss is summed
@@ -167,7 +169,7 @@ class RewardEnsemble(nn.Module):
         labels = th.as_tensor(dataset.labels, device=self.device)
         n = len(labels)
         loss_value, accuracy, epoch = float("nan"), 0.0, 0
-        for epoch in range(1, max_epochs + 1):
+        for epoch in range(1, max_epochs + 1):  # noqa: B007 (returned: the epochs run)
             orders = th.as_tensor(np.stack([rng.permutation(n) for _ in range(self.n_members)]), device=self.device)
             total_loss, correct, counted = 0.0, 0.0, 0.0
             for start in range(0, n, batch_size):

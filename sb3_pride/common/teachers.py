@@ -1,6 +1,6 @@
 """Teachers label segment pairs: the ``Teacher`` protocol, and B-Pref's scripted teachers."""
 
-from typing import Optional, Protocol, Union, runtime_checkable
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 
@@ -21,7 +21,7 @@ class Teacher(Protocol):
 
 
 #: B-Pref's simulated teachers (README of rll-research/BPref); ``beta=None`` is perfectly rational
-TEACHER_PRESETS: dict[str, dict[str, Optional[float]]] = {
+TEACHER_PRESETS: dict[str, dict[str, float | None]] = {
     "oracle": dict(beta=None, gamma=1.0, eps_mistake=0.0, eps_skip=0.0, eps_equal=0.0),
     "mistake": dict(beta=None, gamma=1.0, eps_mistake=0.1, eps_skip=0.0, eps_equal=0.0),
     "noisy": dict(beta=1.0, gamma=1.0, eps_mistake=0.0, eps_skip=0.0, eps_equal=0.0),
@@ -56,12 +56,12 @@ class ScriptedTeacher:
 
     def __init__(
         self,
-        beta: Optional[float] = None,
+        beta: float | None = None,
         gamma: float = 1.0,
         eps_mistake: float = 0.0,
         eps_skip: float = 0.0,
         eps_equal: float = 0.0,
-        seed: Optional[int] = None,
+        seed: int | None = None,
     ):
         if beta is not None and beta <= 0:
             raise ValueError(f"beta must be None (perfectly rational) or > 0, got {beta}")
@@ -78,11 +78,11 @@ class ScriptedTeacher:
         self.rng = np.random.default_rng(seed)
 
     @classmethod
-    def from_preset(cls, name: str, seed: Optional[int] = None) -> "ScriptedTeacher":
+    def from_preset(cls, name: str, seed: int | None = None) -> "ScriptedTeacher":
         """One of B-Pref's teachers: ``oracle``, ``mistake``, ``noisy``, ``skip``, ``myopic``, ``equal``."""
         if name not in TEACHER_PRESETS:
             raise ValueError(f"teacher must be a Teacher or one of {sorted(TEACHER_PRESETS)}, got {name!r}")
-        return cls(**TEACHER_PRESETS[name], seed=seed)
+        return cls(**TEACHER_PRESETS[name], seed=seed)  # type: ignore[arg-type]
 
     def step_weights(self, segment_length: int) -> np.ndarray:
         """Myopic weight of each step: ``gamma ** (k - 1 - t)``."""
@@ -107,7 +107,7 @@ class ScriptedTeacher:
         return labels
 
 
-def make_teacher(teacher: Union[str, Teacher], seed: Optional[int] = None) -> Teacher:
+def make_teacher(teacher: str | Teacher, seed: int | None = None) -> Teacher:
     """A preset name becomes a ``ScriptedTeacher``; a ``Teacher`` is returned as is."""
     if isinstance(teacher, str):
         return ScriptedTeacher.from_preset(teacher, seed=seed)

@@ -1,6 +1,6 @@
 """The callbacks that drive PEBBLE's preference-based learning; ``PEBBLE.learn()`` attaches them itself."""
 
-from typing import TYPE_CHECKING, Optional
+from typing import TYPE_CHECKING
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -75,7 +75,7 @@ class FeedbackCallback(BaseCallback):
         if inputs is None:
             return False
         # the journal is written before the answers are used: a crash from here on loses none of them
-        model.record_answers([JournalEntry(session, pair, label) for pair, label in zip(inputs, labels)])
+        model.record_answers([JournalEntry(session, pair, label) for pair, label in zip(inputs, labels, strict=True)])
         model.journal_entries += len(journaled) + len(labels)
         if journaled:
             inputs = np.concatenate([np.stack([entry.inputs for entry in journaled]), inputs])
@@ -109,7 +109,7 @@ class FeedbackCallback(BaseCallback):
             )
         return True
 
-    def ask_new_queries(self, n_queries: int) -> tuple[Optional[np.ndarray], np.ndarray]:
+    def ask_new_queries(self, n_queries: int) -> tuple[np.ndarray | None, np.ndarray]:
         """
         Sample candidate pairs, select ``n_queries`` of them and ask the teacher (``ask_teacher`` checks the answers
         before anything is recorded). Pairs the journal already holds are never asked again.

@@ -1,7 +1,7 @@
 import os
 import warnings
 from collections.abc import Iterable
-from typing import Any, ClassVar, Optional, TypeVar, Union
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 import torch as th
@@ -11,7 +11,7 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
 from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
 from stable_baselines3.common.noise import ActionNoise
-from stable_baselines3.common.preprocessing import is_image_space
+from stable_baselines3.common.preprocessing import get_action_dim, get_flattened_obs_dim, is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
@@ -28,7 +28,7 @@ from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 
 
-def _belongs_to(module: th.nn.Module, owner: Optional[th.nn.Module]) -> bool:
+def _belongs_to(module: th.nn.Module, owner: th.nn.Module | None) -> bool:
     return owner is not None and any(module is part for part in owner.modules())
 
 
@@ -84,37 +84,39 @@ class PEBBLE(SAC):
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = PreferenceReplayBuffer
     replay_buffer: PreferenceReplayBuffer
     reward_model: RewardEnsemble
+    #: D, the teacher's answers (made by ``_setup_model``, once the input size is known)
+    preferences: PreferenceDataset
 
     def __init__(
         self,
-        policy: Union[str, type[SACPolicy]],
-        env: Union[GymEnv, str],
-        learning_rate: Union[float, Schedule] = 3e-4,
+        policy: str | type[SACPolicy],
+        env: GymEnv | str,
+        learning_rate: float | Schedule = 3e-4,
         buffer_size: int = 1_000_000,
         learning_starts: int = 1000,
         batch_size: int = 256,
         tau: float = 0.005,
         gamma: float = 0.99,
-        train_freq: Union[int, tuple[int, str]] = 1,
+        train_freq: int | tuple[int, str] = 1,
         gradient_steps: int = 1,
-        action_noise: Optional[ActionNoise] = None,
-        replay_buffer_class: Optional[type[ReplayBuffer]] = None,
-        replay_buffer_kwargs: Optional[dict[str, Any]] = None,
+        action_noise: ActionNoise | None = None,
+        replay_buffer_class: type[ReplayBuffer] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
         optimize_memory_usage: bool = False,
         n_steps: int = 1,
-        ent_coef: Union[str, float] = "auto",
+        ent_coef: str | float = "auto",
         target_update_interval: int = 1,
-        target_entropy: Union[str, float] = "auto",
+        target_entropy: str | float = "auto",
         use_sde: bool = False,
         sde_sample_freq: int = -1,
         use_sde_at_warmup: bool = False,
         stats_window_size: int = 100,
-        tensorboard_log: Optional[str] = None,
-        policy_kwargs: Optional[dict[str, Any]] = None,
+        tensorboard_log: str | None = None,
+        policy_kwargs: dict[str, Any] | None = None,
         verbose: int = 0,
-        seed: Optional[int] = None,
-        device: Union[th.device, str] = "auto",
-        teacher: Union[str, Teacher] = "oracle",
+        seed: int | None = None,
+        device: th.device | str = "auto",
+        teacher: str | Teacher = "oracle",
         max_feedback: int = 1000,
         feedback_interval: int = 20_000,
         queries_per_session: int = 100,
@@ -125,12 +127,12 @@ class PEBBLE(SAC):
         unsupervised_steps: int = 9000,
         entropy_k: int = 5,
         ensemble_size: int = 3,
-        reward_net_arch: Union[list[int], tuple[int, ...]] = (256, 256, 256),
+        reward_net_arch: list[int] | tuple[int, ...] = (256, 256, 256),
         reward_learning_rate: float = 3e-4,
         reward_batch_size: int = 128,
         reward_epochs: int = 50,
         critic_reset_updates: int = 100,
-        preference_journal: Optional[Union[str, os.PathLike]] = None,
+        preference_journal: str | os.PathLike | None = None,
         _init_setup_model: bool = True,
     ):
         check_positive_ints(
@@ -198,7 +200,7 @@ class PEBBLE(SAC):
         make_teacher(teacher)  # fail now on a bad preset name
         # kept as given (a preset name stays a name, so that rl-zoo3 can pass it again on resume)
         self.teacher = teacher
-        self._scripted_teacher: Optional[tuple[str, Teacher]] = None
+        self._scripted_teacher: tuple[str, Teacher] | None = None
         self.max_feedback = max_feedback
         self.feedback_interval = feedback_interval
         self.queries_per_session = queries_per_session
@@ -221,9 +223,8 @@ class PEBBLE(SAC):
         self.feedback_sessions = 0
         #: how many entries of the preference journal this model's preference dataset and counters include
         self.journal_entries = 0
-        self._journal_cache: Optional[tuple[str, list[JournalEntry]]] = None
+        self._journal_cache: tuple[str, list[JournalEntry]] | None = None
         self.next_feedback_step = learning_starts + unsupervised_steps
-        self.preferences: Optional[PreferenceDataset] = None
         self.preference_rng = np.random.default_rng(seed)
         self.state_entropy = StateEntropyReward(k=entropy_k)
         #: train() calls between two real-only critic diagnostics (train/critic_loss_real, train/q_real)
@@ -236,7 +237,7 @@ class PEBBLE(SAC):
             self._setup_model()
 
     @staticmethod
-    def _check_env(env: Union[GymEnv, str], segment_length: Optional[int], verbose: int) -> GymEnv:
+    def _check_env(env: GymEnv | str, segment_length: int | None, verbose: int) -> GymEnv:
         """
         Preference learning needs flat Box observations and Box actions (say how to get them), no reward
         normalization, and episodes that can hold a segment. Run by the constructor, ``set_env()`` and ``load()``.
@@ -272,9 +273,7 @@ class PEBBLE(SAC):
         specs = env.get_attr("spec")
         limits = [spec.max_episode_steps for spec in specs if spec is not None and spec.max_episode_steps]
         if limits and min(limits) < segment_length:
-            raise ValueError(
-                f"segment_length={segment_length} is longer than an episode of this env ({min(limits)} steps)"
-            )
+            raise ValueError(f"segment_length={segment_length} is longer than an episode of this env ({min(limits)} steps)")
         return env
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
@@ -282,18 +281,17 @@ class PEBBLE(SAC):
         super().set_env(self._check_env(env, self.segment_length, self.verbose), force_reset=force_reset)
 
     @classmethod
-    def load(cls, path, env: Optional[GymEnv] = None, device: Union[th.device, str] = "auto", custom_objects=None,
+    def load(cls, path, env: GymEnv | None = None, device: th.device | str = "auto", custom_objects=None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
         """SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``."""
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
-        if env is not None:
+        if env is not None and model.env is not None:
             model._check_env(model.env, model.segment_length, model.verbose)
         return model
 
     def _setup_model(self) -> None:
         super()._setup_model()
-        obs_dim = int(np.prod(self.observation_space.shape))
-        action_dim = int(np.prod(self.action_space.shape))
+        obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         self.reward_model = RewardEnsemble(
             obs_dim,
             action_dim,
@@ -302,7 +300,7 @@ class PEBBLE(SAC):
             learning_rate=self.reward_learning_rate,
             device=self.device,
         )
-        if self.preferences is None:
+        if getattr(self, "preferences", None) is None:  # a loaded model has its own
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
         self._attach_reward_model()
         self._journal_cache = None
@@ -348,7 +346,7 @@ class PEBBLE(SAC):
             data = buffer._get_samples(rows, env=self._vec_normalize_env)
             next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
             next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), dim=1, keepdim=True)[0]
-            ent_coef = th.exp(self.log_ent_coef) if self.ent_coef_optimizer is not None else self.ent_coef_tensor
+            ent_coef = self.ent_coef_tensor if self.log_ent_coef is None else th.exp(self.log_ent_coef)
             target = data.rewards + (1 - data.dones) * self.gamma * (next_q - ent_coef * next_log_prob.reshape(-1, 1))
             current = self.critic(data.observations, data.actions)
         np.random.set_state(numpy_state)
@@ -448,7 +446,7 @@ class PEBBLE(SAC):
         PreferenceJournal(self.preference_journal).append(entries)
         self.journal_history().extend(entries)
 
-    def save(self, path, exclude: Optional[Iterable[str]] = None, include: Optional[Iterable[str]] = None) -> None:
+    def save(self, path, exclude: Iterable[str] | None = None, include: Iterable[str] | None = None) -> None:
         """SB3's ``save``, written to a temporary file renamed over ``path`` once complete."""
         if not isinstance(path, (str, os.PathLike)):
             return super().save(path, exclude, include)
@@ -483,8 +481,9 @@ class PEBBLE(SAC):
         """
         shared = self.critic.features_extractor if self.critic.share_features_extractor else None
         for module in self.critic.modules():
-            if hasattr(module, "reset_parameters") and not _belongs_to(module, shared):
-                module.reset_parameters()
+            reset_parameters = getattr(module, "reset_parameters", None)
+            if callable(reset_parameters) and not _belongs_to(module, shared):
+                reset_parameters()
         self.critic_target.load_state_dict(self.critic.state_dict())
         self.critic.optimizer.state.clear()
 
@@ -531,7 +530,7 @@ class PEBBLE(SAC):
         total_timesteps: int,
         callback: MaybeCallback = None,
         log_interval: int = 4,
-        tb_log_name: Optional[str] = None,
+        tb_log_name: str | None = None,
         reset_num_timesteps: bool = True,
         progress_bar: bool = False,
     ) -> SelfPEBBLE:

@@ -33,6 +33,7 @@ class DiffusionCallback(BaseCallback):
             return True
         model.next_diffusion_step = model.num_timesteps + model.diffusion_interval
         real = model.transition_vectors()
+        assert model.diffusion is not None  # built by the first transition_vectors(), once the terminal flag is known
         fit = model.diffusion.fit(model.encode(real))
         start = time.perf_counter()
         n_draw = int(np.ceil(model.synthetic_samples / model.synthetic_keep_quantile))
@@ -57,10 +58,12 @@ class DiffusionCallback(BaseCallback):
         if fidelity is not None:
             for key, value in vars(fidelity).items():
                 self.logger.record(f"diffusion/{key}", value)
-            if len(kept) < len(generated):
+            if len(kept) < len(generated) and model.dynamics is not None:
                 # under the ensemble already fitted (optimistic under the dynamics filter, which chose them by it)
                 kept_error = model.dynamics.errors(*model.split(kept)).mean()
-                self.logger.record("diffusion/kept_dynamics_error_ratio", kept_error / max(fidelity.real_dynamics_error, 1e-12))
+                self.logger.record(
+                    "diffusion/kept_dynamics_error_ratio", kept_error / max(fidelity.real_dynamics_error, 1e-12)
+                )
             summary = f", dynamics error ratio {fidelity.dynamics_error_ratio:.2f}, novelty {fidelity.novelty_ratio:.2f}"
         if self.verbose > 0:
             print(
@@ -68,4 +71,3 @@ class DiffusionCallback(BaseCallback):
                 f"fit {fit.seconds:.1f} s, {len(kept)} samples in {generate_seconds:.1f} s ({dropped} dropped){summary}"
             )
         return True
-

@@ -1,5 +1,5 @@
 import inspect
-from typing import Any, ClassVar, Optional, Union
+from typing import Any, ClassVar
 
 import numpy as np
 from stable_baselines3.common.callbacks import BaseCallback
@@ -21,7 +21,10 @@ SYNTHETIC_FILTERS = ("dynamics", "reward")
 
 
 def add_states_to_next_states(vectors: np.ndarray, obs_dim: int, action_dim: int, sign: float) -> np.ndarray:
-    """A copy of transition vectors [s, a, s', ...] with s' + sign·s in place of s': sign −1 gives [s, a, s' − s], +1 undoes it."""
+    """
+    A copy of transition vectors [s, a, s', ...] with s' + sign·s in place of s': sign −1 gives [s, a, s' − s],
+    +1 undoes it.
+    """
     changed = vectors.copy()
     changed[:, obs_dim + action_dim : 2 * obs_dim + action_dim] += sign * changed[:, :obs_dim]
     return changed
@@ -41,8 +44,8 @@ class PRIDE(PEBBLE):
     rewards stale until the next generation.) Terminal flags are modelled only if the real buffer holds a true
     termination by the first retrain (never on DMC or Meta-World, whose episodes only time out).
 
-    Every other parameter is PEBBLE's (and SAC's), with the same defaults; paper-scale diffusion settings (SynthER's: width 1024,
-    6 blocks, 100k training steps, 128 sampling steps, 1M samples) are in ``hyperparams/pride.yml``. The defaults
+    Every other parameter is PEBBLE's (and SAC's), with the same defaults; paper-scale diffusion settings (SynthER's:
+    width 1024, 6 blocks, 100k training steps, 128 sampling steps, 1M samples) are in ``hyperparams/pride.yml``. The defaults
     here are sized for a CPU and chosen by ``benchmarks/generator.py`` (``benchmarks/results/README.md``): the
     paper's generator (an unconditional model of [s, a, s'], 256 × 3 blocks / 2000 steps) makes next states 2.9–3.8×
     as inconsistent with the dynamics as real held-out ones on walker-walk; modelling s' − s and generating near
@@ -93,29 +96,29 @@ class PRIDE(PEBBLE):
 
     def __init__(
         self,
-        policy: Union[str, type[SACPolicy]],
-        env: Union[GymEnv, str],
+        policy: str | type[SACPolicy],
+        env: GymEnv | str,
         synthetic_ratio: float = 0.5,
         diffusion_interval: int = 10_000,
         synthetic_samples: int = 20_000,
-        synthetic_buffer_size: Optional[int] = None,
+        synthetic_buffer_size: int | None = None,
         diffusion_width: int = 256,
         diffusion_blocks: int = 3,
         diffusion_train_steps: int = 2000,
         diffusion_sample_steps: int = 8,
         diffusion_warm_start: bool = True,
-        diffusion_kwargs: Optional[dict[str, Any]] = None,
+        diffusion_kwargs: dict[str, Any] | None = None,
         model_state_change: bool = True,
         generation: str = "near_real",
         anchor_noise: float = 0.25,
         synthetic_start: int = 0,
         synthetic_ramp: int = 0,
-        diffusion_window: Optional[int] = None,
+        diffusion_window: int | None = None,
         synthetic_keep_quantile: float = 1.0,
         synthetic_filter: str = "dynamics",
         fidelity_check: bool = True,
-        dynamics_kwargs: Optional[dict[str, Any]] = None,
-        replay_buffer_kwargs: Optional[dict[str, Any]] = None,
+        dynamics_kwargs: dict[str, Any] | None = None,
+        replay_buffer_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
     ):
@@ -174,12 +177,12 @@ class PRIDE(PEBBLE):
         self.synthetic_filter = synthetic_filter
         self.fidelity_check = fidelity_check
         self.dynamics_kwargs = dict(dynamics_kwargs or {})
-        self.dynamics: Optional[DynamicsEnsemble] = None
-        self.first_generation_step: Optional[int] = None
+        self.dynamics: DynamicsEnsemble | None = None
+        self.first_generation_step: int | None = None
         # learning state, saved with the model; the diffusion model is built at the first retrain, when it is
         # known whether terminal flags are part of a transition
-        self.model_terminals: Optional[bool] = None
-        self.diffusion: Optional[ElucidatedDiffusion] = None
+        self.model_terminals: bool | None = None
+        self.diffusion: ElucidatedDiffusion | None = None
         self.diffusion_retrains = 0
         # the first retrain comes right after the first reward learning (or at synthetic_start, if later)
         self.next_diffusion_step = max(self.next_feedback_step, synthetic_start)
