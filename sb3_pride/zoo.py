@@ -12,12 +12,15 @@ modules) and its optuna samplers, then runs rl-zoo3's own entry point. Our hyper
 """
 
 import functools
+import os
+import re
 import runpy
 import sys
 from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.common.callbacks import CheckpointCallback
 
 from sb3_pride.pebble import PEBBLE
 from sb3_pride.pride import PRIDE
@@ -105,10 +108,32 @@ class _InferenceLoader:
 
 
 def _continue_step_count(manager_class: type) -> type:
-    """rl-zoo3's ExperimentManager, except that ``-i`` continues the step count of a PRIDE/PEBBLE agent
-    (rl-zoo3 restarts it at 0), so that its feedback and diffusion schedules go on where they were."""
+    """
+    rl-zoo3's ExperimentManager, with what a crash-safe PRIDE/PEBBLE run needs: ``-i`` continues the step count
+    (rl-zoo3 restarts it at 0) so that the feedback and diffusion schedules go on where they were;
+    ``--save-freq`` with ``--save-replay-buffer`` saves the replay buffer with every checkpoint (rl-zoo3 saves it
+    only at the end of a run), and ``-i path/rl_model_N_steps.zip`` loads that checkpoint's buffer.
+    """
 
     class ExperimentManager(manager_class):  # type: ignore[misc, valid-type]
+        def create_callbacks(self) -> None:
+            super().create_callbacks()
+            if self.algo in ZOO_ALGOS and self.save_replay_buffer:
+                for callback in self.callbacks:
+                    if isinstance(callback, CheckpointCallback):
+                        callback.save_replay_buffer = True
+
+        def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: Any) -> Any:
+            model = super()._load_pretrained_agent(hyperparams, env)
+            checkpoint = re.fullmatch(r"(.*)_(\d+)_steps\.zip", os.path.basename(self.trained_agent))
+            folder = os.path.dirname(self.trained_agent)
+            if isinstance(model, PEBBLE) and checkpoint and not os.path.exists(os.path.join(folder, "replay_buffer.pkl")):
+                buffer = os.path.join(folder, f"{checkpoint[1]}_replay_buffer_{checkpoint[2]}_steps.pkl")
+                if os.path.exists(buffer):
+                    print(f"Loading the checkpoint's replay buffer {buffer}")
+                    model.load_replay_buffer(buffer)
+            return model
+
         def learn(self, model) -> None:
             if not (self.continue_training and isinstance(model, PEBBLE)):
                 return super().learn(model)

@@ -11,6 +11,7 @@ import pytest
 import yaml
 
 from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.zoo import hyperparams_dir, register
 
 HYPERPARAMS = hyperparams_dir()
@@ -127,3 +128,26 @@ def test_optimize_two_trials_with_sqlite_storage(tmp_path):
     study = optuna.load_study(study_name="pebble-walker", storage=storage)
     finished = [t for t in study.trials if t.state == optuna.trial.TrialState.COMPLETE]
     assert len(finished) == 2 and "feedback_interval" in finished[0].params
+
+
+def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp_path):
+    """--save-freq with --save-replay-buffer saves the buffer with every checkpoint; -i from a checkpoint loads it, and
+    the preference journal gives back the answers given after that checkpoint instead of asking again."""
+    journal = tmp_path / "preferences.jsonl"
+    params = [*TINY_PEBBLE, f"preference_journal:'{journal}'"]
+    conf = str(HYPERPARAMS / "cpu/pebble.yml")
+    zoo("train", "--algo", "pebble", "--env", "dm_control/walker-walk-v0", "-n", "400", "-f", "logs", "-conf", conf,
+        "--eval-freq", "0", "--save-freq", "150", "--save-replay-buffer", "-params", *params, cwd=tmp_path)  # fmt: skip
+    run = tmp_path / "logs/pebble/dm_control-walker-walk-v0_1"
+    assert (run / "rl_model_replay_buffer_300_steps.pkl").exists()
+    answers = PreferenceJournal(journal).read()
+    assert [entry.session for entry in answers] == [1] * 10 + [2] * 10  # sessions at steps 200 and 400
+
+    (run / "replay_buffer.pkl").unlink()  # as if the run had been killed before its end
+    out = zoo("train", "--algo", "pebble", "--env", "dm_control/walker-walk-v0", "-n", "100", "-f", "logs", "-conf", conf,
+              "--eval-freq", "0", "-i", str(run / "rl_model_300_steps.zip"), "-params", *params, cwd=tmp_path)  # fmt: skip
+    assert "Loading the checkpoint's replay buffer" in out
+    resumed = PEBBLE.load(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
+    assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.journal_entries == 20
+    assert len(PreferenceJournal(journal).read()) == 20  # session 2 came back from the journal: nothing asked again
+    np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
