@@ -7,6 +7,9 @@ Environments for preference-based RL benchmarks, registered with gymnasium on ``
   episodes, float32 observations and ``info["is_success"]`` = success at any step so far, which SB3 and rl-zoo3
   read at episode end to report a success rate, e.g. ``sb3_pride/button-press-v3``.
 
+Both record the simulator state of every step in ``info["render_state"]`` once a ``WebTeacher`` asks for it
+(``sb3_pride.human.RenderStates``), so that a person can watch the segments.
+
 dm_control and Meta-World are imported only when an environment is made.
 """
 
@@ -15,6 +18,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+
+from sb3_pride.human.render import RenderStates
 
 NAMESPACE = "sb3_pride"
 
@@ -81,7 +86,7 @@ def make_dm_control(domain_task: str, **kwargs) -> gym.Env:
     import shimmy
 
     gym.register_envs(shimmy)
-    return flatten_observations(gym.make(f"dm_control/{domain_task}-v0", **kwargs))
+    return RenderStates(flatten_observations(gym.make(f"dm_control/{domain_task}-v0", **kwargs)))
 
 
 def make_metaworld(env_name: str, seed: int | None = None, **kwargs) -> gym.Env:
@@ -97,7 +102,7 @@ def make_metaworld(env_name: str, seed: int | None = None, **kwargs) -> gym.Env:
         disable_env_checker=True,  # it flags the goal that Meta-World declares in [0, 0]
         **kwargs,
     )
-    return Float32Observation(EpisodeSuccess(env))
+    return RenderStates(Float32Observation(EpisodeSuccess(env)))
 
 
 def register_envs() -> None:

@@ -1,6 +1,9 @@
+import ctypes.util
 import os
 
-os.environ.setdefault("MUJOCO_GL", "disable")  # no display: dm_control must not try to open one
+# no display: dm_control must not try to open one. Headless EGL where Mesa's libEGL is installed (the WebTeacher's
+# clips, rendering tests); MuJoCo reads MUJOCO_GL once, at its import
+os.environ.setdefault("MUJOCO_GL", "egl" if ctypes.util.find_library("EGL") else "disable")
 
 import pytest
 import torch as th

@@ -64,6 +64,11 @@ class PreferenceReplayBuffer(ReplayBuffer):
         self.true_rewards = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
         self.reward_fn: RewardFn | None = None
         self.intrinsic_reward: IntrinsicRewardFn | None = None
+        #: True while a teacher needs pictures: ``add()`` then keeps ``info["render_state"]`` of every transition
+        self.record_render_states = False
+        #: (buffer_size, n_envs, state_dim) float64, the simulator state after each stored step (the frame of its
+        #: next observation), allocated at the first recorded transition; None while nothing was recorded
+        self.render_states: np.ndarray | None = None
 
     def __getstate__(self) -> dict:
         # The reward model and the entropy estimator belong to the algorithm, which re-attaches them
@@ -74,6 +79,8 @@ class PreferenceReplayBuffer(ReplayBuffer):
 
     def add(self, obs, next_obs, action, reward, done, infos) -> None:  # type: ignore[override]
         self.true_rewards[self.pos] = np.asarray(reward, dtype=np.float32).reshape(self.n_envs)
+        if self.record_render_states:
+            self._record_render_states(infos)
         if self.reward_fn is not None:
             learned = self.reward_fn(np.asarray(obs).reshape(self.n_envs, -1), np.asarray(action).reshape(self.n_envs, -1))
         else:
@@ -83,6 +90,17 @@ class PreferenceReplayBuffer(ReplayBuffer):
     def relabel(self, reward_fn: RewardFn, batch_size: int = 16_384) -> None:
         """Rewrite every stored reward with r̂ (PEBBLE's relabeling)."""
         relabel_rewards(self, reward_fn, batch_size)
+
+    def _record_render_states(self, infos: list[dict]) -> None:
+        if any(info.get("render_state") is None for info in infos):
+            raise ValueError(
+                "the teacher needs pictures but the env's step info has no 'render_state': record it with "
+                "sb3_pride.human.RenderStates (every sb3_pride/... env has it)"
+            )
+        states = np.stack([np.asarray(info["render_state"], dtype=np.float64) for info in infos])
+        if self.render_states is None:
+            self.render_states = np.zeros((self.buffer_size, self.n_envs, states.shape[1]), dtype=np.float64)
+        self.render_states[self.pos] = states
 
     def end_episodes(self) -> None:
         """

@@ -40,7 +40,8 @@ class JournalEntry:
 class PreferenceJournal:
     """
     An append-only JSON-lines file of the teacher's answers, one line per query:
-    ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}``.
+    ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}``, and one line
+    ``{"session": n, "undo": true}`` for each answer taken back (a person's undo), which removes the session's last.
 
     :param path: the file (created with its folder on the first answer)
     """
@@ -52,7 +53,7 @@ class PreferenceJournal:
         """Every entry, oldest first; a last line cut by a crash in the middle of a write is ignored."""
         if not self.path.exists():
             return []
-        entries = []
+        entries: list[JournalEntry] = []
         lines = self.path.read_text().split("\n")
         for number, line in enumerate(lines, start=1):
             if not line.strip():
@@ -63,6 +64,11 @@ class PreferenceJournal:
                 if number == len(lines):  # the torn last line of a killed writer (no newline yet)
                     break
                 raise ValueError(f"preference_journal {self.path}: line {number} is not JSON") from None
+            if record.get("undo"):
+                if not entries or entries[-1].session != record["session"]:
+                    raise ValueError(f"preference_journal {self.path}: line {number} undoes no answer of its session")
+                entries.pop()
+                continue
             inputs = np.frombuffer(base64.b64decode(record["inputs"]), dtype=np.float32).reshape(record["shape"])
             label = float("nan") if record["label"] is None else float(record["label"])
             entries.append(JournalEntry(int(record["session"]), inputs.copy(), label))
@@ -80,19 +86,27 @@ class PreferenceJournal:
 
     def append(self, entries: list[JournalEntry]) -> None:
         """Append ``entries`` and flush them to disk (fsync) before returning."""
+        records = []
+        for entry in entries:
+            inputs = np.ascontiguousarray(entry.inputs, dtype=np.float32)
+            records.append({
+                "session": entry.session,
+                "id": query_id(inputs),
+                "label": None if np.isnan(entry.label) else float(entry.label),
+                "shape": list(inputs.shape),
+                "inputs": base64.b64encode(inputs.tobytes()).decode("ascii"),
+            })  # fmt: skip
+        self._write(records)
+
+    def append_undo(self, session: int) -> None:
+        """Record that the last answer of ``session`` was taken back (flushed to disk before returning)."""
+        self._write([{"session": session, "undo": True}])
+
+    def _write(self, records: list[dict]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._cut_torn_line()
         with open(self.path, "a") as file:
-            for entry in entries:
-                inputs = np.ascontiguousarray(entry.inputs, dtype=np.float32)
-                record = {
-                    "session": entry.session,
-                    "id": query_id(inputs),
-                    "label": None if np.isnan(entry.label) else float(entry.label),
-                    "shape": list(inputs.shape),
-                    "inputs": base64.b64encode(inputs.tobytes()).decode("ascii"),
-                }
-                file.write(json.dumps(record) + "\n")
+            file.writelines(json.dumps(record) + "\n" for record in records)
             file.flush()
             os.fsync(file.fileno())
 

@@ -22,18 +22,29 @@ class SegmentPairs:
     :param true_rewards: (n, 2, k)
     :param return_scale: the typical true return of one segment in recent episodes
         (mean true reward per step × k); the scripted teachers scale their skip/equal thresholds by it
+    :param render_states: (n, 2, k, state_dim) simulator states after each step, for teachers that watch the
+        segments (``PreferenceReplayBuffer.record_render_states``); None when not recorded
     """
 
     observations: np.ndarray
     actions: np.ndarray
     true_rewards: np.ndarray
     return_scale: float = 1.0
+    render_states: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.observations)
 
     def __getitem__(self, index) -> "SegmentPairs":
-        return SegmentPairs(self.observations[index], self.actions[index], self.true_rewards[index], self.return_scale)
+        render_states = None if self.render_states is None else self.render_states[index]
+        return SegmentPairs(
+            self.observations[index], self.actions[index], self.true_rewards[index], self.return_scale, render_states
+        )
+
+    @property
+    def inputs(self) -> np.ndarray:
+        """The reward model's inputs: (n, 2, k, obs_dim + action_dim) float32 [s, a]."""
+        return np.concatenate([self.observations, self.actions], axis=-1).astype(np.float32)
 
 
 def chronological_rows(buffer: PreferenceReplayBuffer) -> np.ndarray:
@@ -97,6 +108,7 @@ def sample_segment_pairs(
         actions=buffer.actions[steps, env_idx],
         true_rewards=buffer.true_rewards[steps, env_idx],
         return_scale=float(np.mean(window_rewards) * segment_length),
+        render_states=None if buffer.render_states is None else buffer.render_states[steps, env_idx],
     )
 
 

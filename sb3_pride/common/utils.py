@@ -1,5 +1,6 @@
 """Argument checks shared by the algorithms and models: errors name the parameter and what was expected."""
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -17,3 +18,13 @@ def check_non_negative_ints(**params: Any) -> None:
     for name, value in params.items():
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
             raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
+
+
+def check_real(name: str, value: Any, accepted: Callable[[float], bool], expected: str) -> None:
+    """
+    Raise ``ValueError`` naming ``name`` unless ``value`` is a real number (not a bool, not NaN) that ``accepted``
+    takes; ``expected`` says which, e.g. ``"in [0, 1]"``.
+    """
+    is_real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
+    if not is_real or np.isnan(value) or not accepted(value):
+        raise ValueError(f"{name} must be {expected}, got {value!r}")

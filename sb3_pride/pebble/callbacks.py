@@ -74,8 +74,10 @@ class FeedbackCallback(BaseCallback):
         inputs, labels = self.ask_new_queries(n_queries - len(journaled))
         if inputs is None:
             return False
-        # the journal is written before the answers are used: a crash from here on loses none of them
-        model.record_answers([JournalEntry(session, pair, label) for pair, label in zip(inputs, labels, strict=True)])
+        # the journal is written before the answers are used (a teacher that hears them one at a time, a person,
+        # has written each as it came): a crash from here on loses none of them
+        if not getattr(model.resolve_teacher(), "journals_answers", False):
+            model.record_answers([JournalEntry(session, pair, label) for pair, label in zip(inputs, labels, strict=True)])
         model.journal_entries += len(journaled) + len(labels)
         if journaled:
             inputs = np.concatenate([np.stack([entry.inputs for entry in journaled]), inputs])
@@ -130,7 +132,7 @@ class FeedbackCallback(BaseCallback):
         if candidates is None:
             model.warn_short_episodes()
             return None, np.zeros(0)
-        inputs = np.concatenate([candidates.observations, candidates.actions], axis=-1).astype(np.float32)
+        inputs = candidates.inputs
         asked_before = {entry.id for entry in model.journal_history()}
         if asked_before:
             fresh = np.array([query_id(pair) not in asked_before for pair in inputs])

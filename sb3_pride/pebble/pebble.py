@@ -13,7 +13,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.preprocessing import get_action_dim, get_flattened_obs_dim, is_image_space
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
-from stable_baselines3.common.vec_env import unwrap_vec_normalize
+from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
@@ -23,9 +23,11 @@ from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_wri
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import Teacher, make_teacher
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
+#: ``teacher="web"``: a person labels in a browser (``sb3_pride.human.WebTeacher`` on port 8000)
+WEB_TEACHER = "web"
 
 
 def _belongs_to(module: th.nn.Module, owner: th.nn.Module | None) -> bool:
@@ -52,8 +54,9 @@ class PEBBLE(SAC):
     Saves (``save()``, ``save_replay_buffer()``, SB3's ``CheckpointCallback``) write a temporary file and rename it,
     so a run killed mid-save leaves the previous checkpoint readable.
 
-    :param teacher: who labels the queries: a ``Teacher`` (a callable, e.g. a person behind a UI) or the name of
-        a B-Pref scripted teacher preset: "oracle", "mistake", "noisy", "skip", "myopic", "equal"
+    :param teacher: who labels the queries: a ``Teacher`` (a callable), "web" (a person, in a browser:
+        ``sb3_pride.human.WebTeacher()`` on port 8000), or the name of a B-Pref scripted teacher preset: "oracle",
+        "mistake", "noisy", "skip", "myopic", "equal"
     :param max_feedback: Q, the total query budget
     :param feedback_interval: M, env steps between feedback sessions
     :param queries_per_session: K, queries asked per session (the last session is cut to the budget)
@@ -150,8 +153,7 @@ class PEBBLE(SAC):
         check_non_negative_ints(unsupervised_steps=unsupervised_steps, critic_reset_updates=critic_reset_updates)
         if query_selection not in QUERY_SELECTIONS:
             raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {query_selection!r}")
-        if reward_learning_rate <= 0:
-            raise ValueError(f"reward_learning_rate must be > 0, got {reward_learning_rate}")
+        check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         if n_steps != 1:
             raise ValueError(
                 f"n_steps must be 1, got {n_steps}: n-step returns sum stored rewards along a trajectory, but PEBBLE "
@@ -163,6 +165,10 @@ class PEBBLE(SAC):
                 f"replay_buffer_class must subclass {self.buffer_class.__name__} (true rewards kept aside), "
                 f"got {replay_buffer_class.__name__}"
             )
+        if teacher == WEB_TEACHER:
+            from sb3_pride.human.render import use_headless_gl
+
+            use_headless_gl()  # before the env is made: MuJoCo reads MUJOCO_GL once
         if env is not None:
             # rl-zoo3 and SB3's load() build the model with _init_setup_model=False before restoring its
             # segment_length: load() checks the episode length itself, once the saved value is back
@@ -197,10 +203,12 @@ class PEBBLE(SAC):
             device=device,
             _init_setup_model=False,
         )
-        make_teacher(teacher)  # fail now on a bad preset name
+        if teacher != WEB_TEACHER:
+            make_teacher(teacher)  # fail now on a bad preset name
         # kept as given (a preset name stays a name, so that rl-zoo3 can pass it again on resume)
         self.teacher = teacher
         self._scripted_teacher: tuple[str, Teacher] | None = None
+        self._web_teacher: Teacher | None = None
         self.max_feedback = max_feedback
         self.feedback_interval = feedback_interval
         self.queries_per_session = queries_per_session
@@ -268,17 +276,22 @@ class PEBBLE(SAC):
                 "env is a VecNormalize with norm_reward=True: it would scale r̂ by statistics of the true return "
                 "(a leak, and the wrong scale); use VecNormalize(..., norm_reward=False)"
             )
-        if segment_length is None:
-            return env
+        if segment_length is not None:
+            PEBBLE._check_episode_length(env, segment_length)
+        return env
+
+    @staticmethod
+    def _check_episode_length(env: VecEnv, segment_length: int) -> None:
+        """Refuse a segment longer than the env's own step limit (episodes that end earlier only warn, later)."""
         specs = env.get_attr("spec")
         limits = [spec.max_episode_steps for spec in specs if spec is not None and spec.max_episode_steps]
         if limits and min(limits) < segment_length:
             raise ValueError(f"segment_length={segment_length} is longer than an episode of this env ({min(limits)} steps)")
-        return env
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
         """SB3's ``set_env``, after the constructor's checks of ``env`` (spaces, reward normalization, episode length)."""
         super().set_env(self._check_env(env, self.segment_length, self.verbose), force_reset=force_reset)
+        self._attach_teacher()
 
     @classmethod
     def load(cls, path, env: GymEnv | None = None, device: th.device | str = "auto", custom_objects=None,
@@ -305,6 +318,7 @@ class PEBBLE(SAC):
         self._attach_reward_model()
         self._journal_cache = None
         self.journal_history()  # a journal that does not fit this model fails now, not at the next session
+        self._attach_teacher()
 
     def _attach_reward_model(self) -> None:
         """New transitions get r̂ once a reward model was learned (0 before, overwritten by the first relabel)."""
@@ -391,17 +405,43 @@ class PEBBLE(SAC):
     def _preference_callbacks(self) -> list[BaseCallback]:
         return [UnsupervisedPretrainingCallback(), FeedbackCallback(verbose=self.verbose)]
 
-    def _resolve_teacher(self) -> Teacher:
-        """The teacher object: a preset name becomes a ScriptedTeacher once (its random state is then saved)."""
+    def resolve_teacher(self) -> Teacher:
+        """
+        The teacher object: a preset name becomes a ScriptedTeacher once (its random state is then saved); "web" a
+        ``sb3_pride.human.WebTeacher`` on port 8000 (the ``[human]`` extra), made once per process.
+        """
         if not isinstance(self.teacher, str):
             return self.teacher
+        if self.teacher == WEB_TEACHER:
+            if self._web_teacher is None:
+                from sb3_pride.human import WebTeacher  # the [human] extra: imported only when asked for
+
+                self._web_teacher = WebTeacher()
+            return self._web_teacher
         if self._scripted_teacher is None or self._scripted_teacher[0] != self.teacher:
             self._scripted_teacher = (self.teacher, make_teacher(self.teacher, seed=self.seed))
         return self._scripted_teacher[1]
 
+    def _attach_teacher(self) -> None:
+        """
+        Give the teacher the model if it asks for it (``attach``): a teacher that watches the segments (a person)
+        then checks that the env can be re-rendered and switches on the recording of simulator states, so that an
+        env it cannot show fails now, not at the first feedback session.
+        """
+        attach = getattr(self.resolve_teacher(), "attach", None)
+        if callable(attach) and self.env is not None:
+            attach(self)
+
     def ask_teacher(self, pairs: SegmentPairs) -> np.ndarray:
         """The teacher's labels μ for ``pairs``, checked: one per pair, each in [0, 1] or NaN (skipped)."""
-        labels = np.asarray(self._resolve_teacher()(pairs), dtype=np.float64).reshape(-1)
+        answer = self.resolve_teacher()(pairs)
+        try:
+            labels = np.asarray(answer)
+        except ValueError as error:  # ragged nesting
+            raise ValueError(f"teacher must return one number per segment pair, got {answer!r}: {error}") from None
+        if labels.dtype.kind not in "biuf":  # None, strings, objects: np.asarray(dtype=float) would make None a NaN
+            raise ValueError(f"teacher must return numbers (NaN to skip a pair), got {answer!r}")
+        labels = labels.astype(np.float64).reshape(-1)
         if len(labels) != len(pairs):
             raise ValueError(f"teacher returned {len(labels)} labels for {len(pairs)} segment pairs")
         finite = labels[~np.isnan(labels)]
@@ -440,11 +480,21 @@ class PEBBLE(SAC):
         return answers
 
     def record_answers(self, entries: list[JournalEntry]) -> None:
-        """Append new answers to the preference journal (flushed to disk before returning)."""
+        """
+        Append new answers to the preference journal (flushed to disk before returning). The feedback session calls
+        it with the teacher's answers; a teacher that hears them one at a time (a person) calls it for each.
+        """
         if self.preference_journal is None or not entries:
             return
         PreferenceJournal(self.preference_journal).append(entries)
         self.journal_history().extend(entries)
+
+    def retract_answer(self, session: int) -> None:
+        """Record in the journal that the last answer of ``session`` was taken back (a person's undo)."""
+        if self.preference_journal is None:
+            return
+        PreferenceJournal(self.preference_journal).append_undo(session)
+        self.journal_history().pop()
 
     def save(self, path, exclude: Iterable[str] | None = None, include: Iterable[str] | None = None) -> None:
         """SB3's ``save``, written to a temporary file renamed over ``path`` once complete."""
@@ -517,9 +567,10 @@ class PEBBLE(SAC):
         if not isinstance(self.replay_buffer, self.buffer_class):
             raise ValueError(f"{path} holds a {type(self.replay_buffer).__name__}, not a {self.buffer_class.__name__}")
         self._attach_reward_model()
+        self._attach_teacher()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
+        return [*super()._excluded_save_params(), "reward_model", "_journal_cache", "_web_teacher"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

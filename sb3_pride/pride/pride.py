@@ -1,4 +1,3 @@
-import inspect
 from typing import Any, ClassVar
 
 import numpy as np
@@ -11,7 +10,7 @@ from sb3_pride.pride.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity, split_transitions
 from sb3_pride.common.queries import chronological_rows
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
 from sb3_pride.pebble.pebble import PEBBLE
 
 #: how synthetic transitions are generated (``generation``)
@@ -122,8 +121,7 @@ class PRIDE(PEBBLE):
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
     ):
-        if not 0.0 <= synthetic_ratio <= 1.0:
-            raise ValueError(f"synthetic_ratio must be in [0, 1], got {synthetic_ratio}")
+        check_real("synthetic_ratio", synthetic_ratio, lambda u: 0.0 <= u <= 1.0, "in [0, 1]")
         check_positive_ints(
             diffusion_interval=diffusion_interval,
             synthetic_samples=synthetic_samples,
@@ -141,14 +139,29 @@ class PRIDE(PEBBLE):
             raise ValueError(f"generation must be one of {GENERATIONS}, got {generation!r}")
         sigma_min = (diffusion_kwargs or {}).get("sigma_min", 0.002)
         sigma_max = (diffusion_kwargs or {}).get("sigma_max", 80.0)
-        if not sigma_min < anchor_noise <= sigma_max:
-            raise ValueError(f"anchor_noise must be in (sigma_min={sigma_min}, sigma_max={sigma_max}], got {anchor_noise}")
-        try:  # fail now, not at the first retrain
-            inspect.signature(DynamicsEnsemble).bind(1, 1, **(dynamics_kwargs or {}))
-        except TypeError as error:
-            raise ValueError(f"dynamics_kwargs must be DynamicsEnsemble arguments: {error}") from None
-        if not 0.0 < synthetic_keep_quantile <= 1.0:
-            raise ValueError(f"synthetic_keep_quantile must be in (0, 1], got {synthetic_keep_quantile}")
+        check_real(
+            "anchor_noise",
+            anchor_noise,
+            lambda sigma: sigma_min < sigma <= sigma_max,
+            f"in (sigma_min={sigma_min}, sigma_max={sigma_max}]",
+        )
+        # fail now, not at the first retrain: build both once, tiny, with every argument they will get
+        try:
+            ElucidatedDiffusion(
+                1,
+                width=diffusion_width,
+                n_blocks=diffusion_blocks,
+                train_steps=diffusion_train_steps,
+                sample_steps=diffusion_sample_steps,
+                **{"device": "cpu", **(diffusion_kwargs or {})},
+            )
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"diffusion_kwargs must be valid ElucidatedDiffusion arguments: {error}") from None
+        try:
+            DynamicsEnsemble(1, 1, **{"device": "cpu", **(dynamics_kwargs or {})})
+        except (TypeError, ValueError) as error:
+            raise ValueError(f"dynamics_kwargs must be valid DynamicsEnsemble arguments: {error}") from None
+        check_real("synthetic_keep_quantile", synthetic_keep_quantile, lambda q: 0.0 < q <= 1.0, "in (0, 1]")
         if synthetic_filter not in SYNTHETIC_FILTERS:
             raise ValueError(f"synthetic_filter must be one of {SYNTHETIC_FILTERS}, got {synthetic_filter!r}")
         if synthetic_keep_quantile < 1.0 and synthetic_filter == "dynamics" and not fidelity_check:
@@ -157,6 +170,8 @@ class PRIDE(PEBBLE):
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
         super().__init__(policy, env, replay_buffer_kwargs=replay_buffer_kwargs, _init_setup_model=False, **pebble_kwargs)
+        if _init_setup_model and self.env is not None:  # PEBBLE skipped it, as it does for load()
+            self._check_episode_length(self.env, self.segment_length)
         self.synthetic_ratio = synthetic_ratio
         self.diffusion_interval = diffusion_interval
         self.synthetic_samples = synthetic_samples

@@ -1,0 +1,276 @@
+"""
+Segments a person can watch: the simulator states recorded beside the transitions, re-rendered later in an env of
+the renderer's own, and encoded as clips any browser plays.
+
+- ``RenderStates`` (on every ``sb3_pride/...`` env, off until a teacher needs pictures) puts the MuJoCo state after
+  each step into ``info["render_state"]``: qpos, qvel, act, the mocap bodies' poses (Meta-World's hand) and the
+  model fields that a reset re-draws (Meta-World's object and goal positions; dm_control's targets in reacher,
+  finger, fish, swimmer, manipulator). ``PreferenceReplayBuffer`` keeps it beside each stored transition.
+- ``SegmentRenderer`` restores those states one by one in its own env and renders them headless (``MUJOCO_GL=egl``),
+  pixel-identical to frames rendered from the live env.
+- ``encode_mp4`` writes H.264 mp4 (yuv420p, fast start) at the env's real frame rate with PyAV, which ships its own
+  encoder (the ``[human]`` extra; no system ffmpeg).
+"""
+
+import os
+import sys
+from fractions import Fraction
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+
+#: model fields a reset may re-draw, recorded with the state when they do (small per-element arrays)
+MODEL_FIELDS = (
+    "body_pos", "body_quat", "geom_pos", "geom_quat", "geom_size", "geom_rgba", "site_pos", "site_quat",
+    "site_size", "site_rgba", "cam_pos", "cam_quat", "light_pos", "light_dir", "mat_rgba",
+)  # fmt: skip
+#: model fields too large to record per transition: a task that re-draws them is refused
+UNRECORDABLE_FIELDS = ("hfield_data", "tex_data", "mesh_vert")
+#: resets of the renderer's own env (distinct seeds) that find which model fields a reset re-draws
+PROBE_RESETS = 6
+#: the camera of each family: dm_control's first (the task's own view, e.g. walker's tracking "side"), and a
+#: Meta-World view that shows the hand, the object and the goal
+METAWORLD_CAMERA = "corner3"
+
+
+def use_headless_gl() -> None:
+    """
+    Headless rendering needs ``MUJOCO_GL=egl``, read once when MuJoCo is imported: set it (where no display is and
+    it is not set) before the first env is made. A WebTeacher does this when it is created.
+    """
+    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
+        if "mujoco" not in sys.modules:
+            os.environ["MUJOCO_GL"] = "egl"
+
+
+def egl_available() -> bool:
+    """Whether MuJoCo can render here (headless EGL, or whatever ``MUJOCO_GL`` names)."""
+    use_headless_gl()
+    try:
+        import mujoco
+
+        renderer = mujoco.Renderer(mujoco.MjModel.from_xml_string("<mujoco><worldbody/></mujoco>"), 16, 16)
+        renderer.render()
+        renderer.close()
+        return True
+    except Exception:
+        return False
+
+
+def mujoco_handles(env: gym.Env) -> tuple[Any, Any]:
+    """The ``(MjModel, MjData)`` behind a dm_control (shimmy) or Meta-World env; ValueError for any other env."""
+    import mujoco
+
+    unwrapped = env.unwrapped
+    physics = getattr(getattr(unwrapped, "_env", None), "physics", None)  # shimmy's dm_control compatibility env
+    if physics is not None:
+        return physics.model.ptr, physics.data.ptr
+    model, data = getattr(unwrapped, "model", None), getattr(unwrapped, "data", None)
+    if isinstance(model, mujoco.MjModel) and isinstance(data, mujoco.MjData):
+        return model, data
+    raise ValueError(
+        f"{env.spec.id if env.spec else type(unwrapped).__name__} is not a MuJoCo env that can be re-rendered from "
+        "its states: WebTeacher supports dm_control and Meta-World ('sb3_pride/<domain>-<task>-v0', 'sb3_pride/<task>-v3')"
+    )
+
+
+def frame_rate(env: gym.Env) -> float:
+    """Frames per second of a clip played at the env's real speed: one frame per env step."""
+    unwrapped = env.unwrapped
+    control = getattr(getattr(unwrapped, "_env", None), "control_timestep", None)
+    dt = control() if callable(control) else getattr(unwrapped, "dt", None)
+    if not dt:
+        raise ValueError(f"cannot tell the duration of one step of {env.spec.id if env.spec else env}")
+    return 1.0 / float(dt)
+
+
+#: what one recorded state holds besides the model fields: positions, velocities, activations, mocap poses
+def _state_spec() -> int:
+    import mujoco
+
+    kinds = mujoco.mjtState
+    return int(
+        kinds.mjSTATE_QPOS | kinds.mjSTATE_QVEL | kinds.mjSTATE_ACT | kinds.mjSTATE_MOCAP_POS | kinds.mjSTATE_MOCAP_QUAT
+    )
+
+
+#: (field name, flat indices into it) of the model entries a reset re-draws
+Layout = tuple[tuple[str, np.ndarray], ...]
+
+
+def capture_state(model: Any, data: Any, layout: Layout) -> np.ndarray:
+    """The compact float64 state that re-renders the current frame: ``mj_getState`` and the ``layout``'s fields."""
+    import mujoco
+
+    spec = _state_spec()
+    state = np.empty(mujoco.mj_stateSize(model, spec), dtype=np.float64)
+    mujoco.mj_getState(model, data, state, spec)
+    return np.concatenate([state, *(getattr(model, name).reshape(-1)[index] for name, index in layout)])
+
+
+def restore_state(model: Any, data: Any, layout: Layout, state: np.ndarray) -> None:
+    """Put a ``capture_state`` vector back (model fields included) and recompute positions (``mj_forward``)."""
+    import mujoco
+
+    spec = _state_spec()
+    size = mujoco.mj_stateSize(model, spec)
+    mujoco.mj_setState(model, data, np.ascontiguousarray(state[:size], dtype=np.float64), spec)
+    offset = size
+    for name, index in layout:
+        getattr(model, name).reshape(-1)[index] = state[offset : offset + len(index)]
+        offset += len(index)
+    mujoco.mj_forward(model, data)
+
+
+def randomized_model_fields(env: gym.Env, resets: int = PROBE_RESETS) -> Layout:
+    """
+    Which model entries a reset of ``env`` re-draws: reset it ``resets`` times (seeds 0, 1, ...) and compare. A task
+    that re-draws a field too large to record (a terrain's height field, a texture) is refused with a ValueError.
+    """
+    model, _ = mujoco_handles(env)
+    fields = [name for name in (*MODEL_FIELDS, *UNRECORDABLE_FIELDS) if getattr(model, name, np.zeros(0)).size]
+    snapshots = []
+    for seed in range(resets):
+        env.reset(seed=seed)
+        snapshots.append({name: getattr(model, name).reshape(-1).copy() for name in fields})
+    layout = []
+    for name in fields:
+        values = np.stack([snapshot[name] for snapshot in snapshots])
+        changed = np.flatnonzero(np.any(values != values[0], axis=0))
+        if len(changed) and name in UNRECORDABLE_FIELDS:
+            raise ValueError(
+                f"{env.spec.id if env.spec else env} re-draws its model's {name} at every reset ({len(changed)} values): "
+                "it cannot be re-rendered from recorded states, so a WebTeacher cannot show it; use a task that does not"
+            )
+        if len(changed):
+            layout.append((name, changed))
+    return tuple(layout)
+
+
+class RenderStates(gym.Wrapper):
+    """
+    ``info["render_state"]``: the float64 MuJoCo state after each step (and after a reset), enough to re-render
+    that frame later (``capture_state``). Off until ``enable_render_states`` is called (by a ``WebTeacher``, through
+    ``VecEnv.env_method``): scripted teachers pay nothing.
+    """
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env)
+        self.render_layout: Layout | None = None  # None: off
+
+    def enable_render_states(self, layout: Layout) -> int:
+        """Record from now on, with the model fields of ``layout``; returns the length of one state."""
+        self.render_layout = tuple((name, np.asarray(index, dtype=np.int64)) for name, index in layout)
+        return len(self._capture())
+
+    def _capture(self) -> np.ndarray:
+        assert self.render_layout is not None
+        model, data = mujoco_handles(self.env)
+        return capture_state(model, data, self.render_layout)
+
+    def reset(self, **kwargs) -> tuple[Any, dict]:
+        obs, info = self.env.reset(**kwargs)
+        if self.render_layout is not None:
+            info["render_state"] = self._capture()
+        return obs, info
+
+    def step(self, action):
+        obs, reward, terminated, truncated, info = self.env.step(action)
+        if self.render_layout is not None:
+            info["render_state"] = self._capture()
+        return obs, reward, terminated, truncated, info
+
+
+def enable_render_states(vec_env: Any, layout: Layout) -> int:
+    """Switch on ``RenderStates`` in every env of ``vec_env``; returns the length of one state."""
+    try:
+        sizes = vec_env.env_method("enable_render_states", layout)
+    except AttributeError:
+        raise ValueError(
+            "the env does not record render states: make it with gymnasium.make('sb3_pride/...') (RenderStates is "
+            "on every sb3_pride env) or wrap it with sb3_pride.human.RenderStates"
+        ) from None
+    return int(sizes[0])
+
+
+class SegmentRenderer:
+    """
+    Renders recorded states (``RenderStates``) of env ``env_id`` headless, in an env of its own.
+
+    :param env_id: a registered gymnasium id (dm_control or Meta-World, e.g. ``"sb3_pride/walker-walk-v0"``)
+    :param width: frame width in pixels
+    :param height: frame height in pixels
+    :param camera: MuJoCo camera name or id (None: the family's default)
+    """
+
+    def __init__(self, env_id: str, width: int = 320, height: int = 240, camera: str | int | None = None):
+        use_headless_gl()
+        self.env_id, self.width, self.height = env_id, width, height
+        self.env = gym.make(env_id)
+        self.model, self.data = mujoco_handles(self.env)
+        self.fps = frame_rate(self.env)
+        #: the model fields a reset of this task re-draws, recorded with every state
+        self.layout = randomized_model_fields(self.env)
+        if camera is None:
+            camera = 0 if self.model.ncam and hasattr(self.env.unwrapped, "_env") else METAWORLD_CAMERA
+        self.camera = camera
+        try:  # fail now (no GL, a bad camera), not at the first feedback session
+            self.render(capture_state(self.model, self.data, self.layout)[None])
+        except ValueError:
+            raise
+        except Exception as error:
+            raise ValueError(
+                f"cannot render {env_id} headless ({type(error).__name__}: {error}); on a machine without a display "
+                "set MUJOCO_GL=egl before the first env is made (and install Mesa's EGL: libegl1 libgl1-mesa-dri)"
+            ) from error
+
+    def render(self, states: np.ndarray) -> np.ndarray:
+        """(k, height, width, 3) uint8 frames of ``states`` (k, state_dim)."""
+        import mujoco
+
+        frames = np.empty((len(states), self.height, self.width, 3), dtype=np.uint8)
+        # a GL context per call, freed at its end: it belongs to the calling thread (training runs in any thread)
+        with mujoco.Renderer(self.model, self.height, self.width) as renderer:
+            for i, state in enumerate(states):
+                restore_state(self.model, self.data, self.layout, state)
+                renderer.update_scene(self.data, camera=self.camera)
+                frames[i] = renderer.render()
+        return frames
+
+    def close(self) -> None:
+        """Close the renderer's own env."""
+        self.env.close()
+
+
+def render_live(env: gym.Env, width: int, height: int, camera: str | int) -> np.ndarray:
+    """A frame of ``env`` as it is now, rendered as ``SegmentRenderer`` does (for comparisons)."""
+    import mujoco
+
+    model, data = mujoco_handles(env)
+    with mujoco.Renderer(model, height, width) as renderer:
+        renderer.update_scene(data, camera=camera)
+        return renderer.render()
+
+
+def encode_mp4(frames: np.ndarray, fps: float, path: str | Path) -> None:
+    """
+    Write ``frames`` (k, h, w, 3) uint8 as an H.264 mp4 any browser plays: yuv420p, the index up front ("fast
+    start", so it plays while loading), odd sizes padded to even ones. Written next to ``path``, then renamed.
+    """
+    import av
+
+    path = Path(path)
+    height, width = frames.shape[1] + frames.shape[1] % 2, frames.shape[2] + frames.shape[2] % 2
+    padded = np.zeros((len(frames), height, width, 3), dtype=np.uint8)
+    padded[:, : frames.shape[1], : frames.shape[2]] = frames
+    partial = path.with_name(path.name + ".part")
+    with av.open(str(partial), mode="w", format="mp4", options={"movflags": "faststart"}) as container:
+        stream = container.add_stream("libx264", rate=Fraction(fps).limit_denominator(1000))
+        stream.width, stream.height, stream.pix_fmt = width, height, "yuv420p"
+        stream.options = {"crf": "20", "preset": "veryfast"}
+        for frame in padded:
+            container.mux(stream.encode(av.VideoFrame.from_ndarray(frame, format="rgb24")))
+        container.mux(stream.encode())
+    os.replace(partial, path)
