@@ -4,6 +4,7 @@ from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer, S
 from sb3_pride.common.diffusion import ElucidatedDiffusion
 from sb3_pride.common.teachers import TEACHER_PRESETS, ScriptedTeacher, Teacher
 from sb3_pride.envs import register_envs
+from sb3_pride.human import WebTeacher
 from sb3_pride.pebble import PEBBLE
 from sb3_pride.pride import PRIDE
 
@@ -21,5 +22,6 @@ __all__ = [
     "ScriptedTeacher",
     "SyntheticReplayBuffer",
     "Teacher",
+    "WebTeacher",
     "__version__",
 ]

@@ -31,7 +31,12 @@ def main() -> None:
     parser.add_argument("--algo", choices=["pride", "pebble"], default="pride")
     parser.add_argument("--env", default="sb3_pride/walker-walk-v0")
     parser.add_argument("--timesteps", type=int, default=20_000)
-    parser.add_argument("--teacher", default="oracle")
+    parser.add_argument(
+        "--teacher",
+        default="oracle",
+        help="a scripted teacher (oracle, mistake, noisy, skip, myopic, equal) or web: you label in a browser at "
+        "http://127.0.0.1:8000/ (the [human] extra; see the README's 'Labeling by hand')",
+    )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-episodes", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1, help="torch threads (small networks: 1 is fastest)")

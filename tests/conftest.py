@@ -26,6 +26,13 @@ TINY = dict(
 )
 
 
+def skip_unless(condition: bool, reason: str) -> None:
+    """Skip where the machine lacks it (a browser, EGL), except in CI (.ci/run sets SB3_PRIDE_REQUIRE_BROWSER)."""
+    if not condition:
+        assert not os.environ.get("SB3_PRIDE_REQUIRE_BROWSER"), reason
+        pytest.skip(reason)
+
+
 @pytest.fixture
 def tiny_kwargs():
     return dict(TINY)

@@ -10,6 +10,7 @@ import urllib.request
 
 import numpy as np
 import pytest
+from conftest import skip_unless
 
 from sb3_pride import PEBBLE
 from sb3_pride.common.journal import PreferenceJournal
@@ -40,7 +41,7 @@ def open_session(tiny_kwargs, tmp_path):
     teacher._start_server()
     inputs = np.zeros((2, tiny_kwargs["segment_length"], 4), np.float32)
     clips = {name: (f"/clips/{name}-left.mp4", f"/clips/{name}-right.mp4") for name in "ab"}
-    queries = [_Query(name, inputs + i, clips[name]) for i, name in enumerate("ab")]
+    queries = [_Query(name, inputs + i, clips[name], ready=True) for i, name in enumerate("ab")]
     teacher._session = _Session(1, queries, asked_before=0)
     yield teacher
     teacher.close()
@@ -94,13 +95,6 @@ def test_a_timeout_skips_the_rest(open_session):
     teacher._wait_for_answers()
     assert session.queries[0].label == 1 and np.isnan(session.queries[1].label)
     assert len(teacher._model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
-
-
-def skip_unless(condition: bool, reason: str) -> None:
-    """Skip where the machine lacks it, except in CI (.ci/run sets SB3_PRIDE_REQUIRE_BROWSER): there it must run."""
-    if not condition:
-        assert not os.environ.get("SB3_PRIDE_REQUIRE_BROWSER"), reason
-        pytest.skip(reason)
 
 
 def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path):

@@ -10,6 +10,8 @@ import numpy as np
 import pytest
 import yaml
 
+from conftest import skip_unless
+
 from sb3_pride import PEBBLE, PRIDE
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.zoo import hyperparams_dir, register
@@ -151,3 +153,17 @@ def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp
     assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.journal_entries == 20
     assert len(PreferenceJournal(journal).read()) == 20  # session 2 came back from the journal: nothing asked again
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
+
+
+def test_zoo_takes_the_web_teacher_and_records_render_states(tmp_path):
+    """`teacher:'web'` through the CLI: a WebTeacher is attached (it serves its page) and the buffer records states."""
+    skip_unless(egl_renders(), "headless EGL (MUJOCO_GL=egl) to render the clips")
+    params = [p for p in TINY_PEBBLE if not p.startswith("unsupervised_steps")]
+    out = zoo("train", "--algo", "pebble", "--env", "sb3_pride/walker-walk-v0", "-n", "150", "-f", "logs",
+              "--eval-freq", "0", "--save-replay-buffer", "-params", *params, "unsupervised_steps:1000000",
+              "teacher:'web'", cwd=tmp_path, gl="egl")  # fmt: skip
+    run = tmp_path / "logs/pebble/sb3_pride-walker-walk-v0_1"
+    model = PEBBLE.load(run / "sb3_pride-walker-walk-v0.zip")
+    assert model.teacher == "web", out
+    model.load_replay_buffer(run / "replay_buffer.pkl")
+    assert model.replay_buffer.render_states is not None and model.replay_buffer.render_states.shape[1:] == (1, 18)

@@ -81,7 +81,9 @@ class ScriptedTeacher:
     def from_preset(cls, name: str, seed: int | None = None) -> "ScriptedTeacher":
         """One of B-Pref's teachers: ``oracle``, ``mistake``, ``noisy``, ``skip``, ``myopic``, ``equal``."""
         if name not in TEACHER_PRESETS:
-            raise ValueError(f"teacher must be a Teacher or one of {sorted(TEACHER_PRESETS)}, got {name!r}")
+            raise ValueError(
+                f'teacher must be a Teacher, "web" (a person, in a browser) or one of {sorted(TEACHER_PRESETS)}, got {name!r}'
+            )
         return cls(**TEACHER_PRESETS[name], seed=seed)  # type: ignore[arg-type]
 
     def step_weights(self, segment_length: int) -> np.ndarray:

@@ -36,6 +36,7 @@ class _Query:
     clips: tuple[str, str]
     label: float | None = None  # NaN: skipped
     answered: bool = False
+    ready: bool = False  # its clips are written: the page may show it
 
 
 @dataclass
@@ -190,20 +191,23 @@ class WebTeacher:
         from sb3_pride.human.render import encode_mp4
 
         number = model.feedback_sessions + 1
-        folder, queries = self._clips_folder(), []
-        for inputs, states in zip(pairs.inputs, pairs.render_states, strict=True):
+        folder = self._clips_folder()
+        queries = []
+        for inputs in pairs.inputs:
             query_id = uuid.uuid4().hex[:12]
-            clips = []
-            for side, segment_states in zip(("left", "right"), states, strict=True):
-                name = f"{query_id}-{side}.mp4"
-                encode_mp4(self._renderer.render(segment_states), self._renderer.fps, folder / name)
-                clips.append(f"/clips/{name}")
-            queries.append(_Query(query_id, inputs, (clips[0], clips[1])))
+            queries.append(_Query(query_id, inputs, (f"/clips/{query_id}-left.mp4", f"/clips/{query_id}-right.mp4")))
         with self._condition:
             self._session = _Session(number, queries, asked_before=model.feedback_asked)
             self._condition.notify_all()
         print(f"WebTeacher: feedback session {number}, {len(queries)} queries: answer them at {self.url}", flush=True)
         try:
+            # the clips are rendered in order while the page already shows the first ones
+            for query, states in zip(queries, pairs.render_states, strict=True):
+                for clip, segment_states in zip(query.clips, states, strict=True):
+                    encode_mp4(self._renderer.render(segment_states), self._renderer.fps, folder / Path(clip).name)
+                with self._condition:
+                    query.ready = True
+                    self._condition.notify_all()
             self._wait_for_answers()
         finally:
             with self._condition:
@@ -255,7 +259,10 @@ class WebTeacher:
                 budget["asked"] = model.feedback_asked if model else None
                 return {"session": None, "queries": [], "answered": 0, "total": 0, "budget": budget}
             budget["asked"] = session.asked_before + session.n_answered
-            queries = [{"id": q.id, "left": q.clips[0], "right": q.clips[1], "answered": q.answered} for q in session.queries]
+            queries = [
+                {"id": q.id, "left": q.clips[0], "right": q.clips[1], "answered": q.answered, "ready": q.ready}
+                for q in session.queries
+            ]
             return {
                 "session": session.number,
                 "queries": queries,
@@ -273,8 +280,8 @@ class WebTeacher:
         with self._condition:
             session = self._session
             query = next((q for q in session.queries if q.id == query_id), None) if session else None
-            if query is None:
-                return False, f"no open query {query_id!r} in this feedback session"
+            if query is None or not query.ready:
+                return False, f"no open query {query_id!r} in this feedback session (or its clips are not ready)"
             if query.answered:
                 return False, f"query {query_id!r} is already answered (undo first)"
             self._record(query, None if label is None else float(label))
