@@ -86,7 +86,8 @@ def make_dm_control(domain_task: str, **kwargs) -> gym.Env:
     import shimmy
 
     gym.register_envs(shimmy)
-    return RenderStates(flatten_observations(gym.make(f"dm_control/{domain_task}-v0", **kwargs)))
+    env = flatten_observations(gym.make(f"dm_control/{domain_task}-v0", **kwargs))
+    return RenderStates(env, env_id=f"{NAMESPACE}/{domain_task}-v0")
 
 
 def make_metaworld(env_name: str, seed: int | None = None, **kwargs) -> gym.Env:
@@ -102,7 +103,7 @@ def make_metaworld(env_name: str, seed: int | None = None, **kwargs) -> gym.Env:
         disable_env_checker=True,  # it flags the goal that Meta-World declares in [0, 0]
         **kwargs,
     )
-    return RenderStates(Float32Observation(EpisodeSuccess(env)))
+    return RenderStates(Float32Observation(EpisodeSuccess(env)), env_id=f"{NAMESPACE}/{env_name}")
 
 
 def register_envs() -> None:

@@ -69,7 +69,7 @@ def test_a_task_that_re_draws_its_terrain_is_refused_when_the_teacher_is_attache
 
 
 def test_an_env_that_cannot_be_re_rendered_is_refused_when_the_teacher_is_attached():
-    with pytest.raises(ValueError, match="not a MuJoCo env that can be re-rendered"):
+    with pytest.raises(ValueError, match="WebTeacher re-renders segments from the simulator states that RenderStates"):
         PEBBLE("MlpPolicy", "Pendulum-v1", teacher=WebTeacher(port=0), segment_length=10)
 
 

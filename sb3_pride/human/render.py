@@ -157,10 +157,17 @@ class RenderStates(gym.Wrapper):
     ``info["render_state"]``: the float64 MuJoCo state after each step (and after a reset), enough to re-render
     that frame later (``capture_state``). Off until ``enable_render_states`` is called (by a ``WebTeacher``, through
     ``VecEnv.env_method``): scripted teachers pay nothing.
+
+    :param env: a dm_control (shimmy) or Meta-World env
+    :param env_id: the registered id that makes this env again, for the renderer's own copy (None: ``env.spec``'s)
     """
 
-    def __init__(self, env: gym.Env):
+    def __init__(self, env: gym.Env, env_id: str | None = None):
         super().__init__(env)
+        if env_id is None and env.spec is None:
+            raise ValueError("RenderStates needs env_id: the registered id that makes this env (gymnasium.make(env_id))")
+        #: what ``SegmentRenderer`` makes to re-render this env's states
+        self.render_env_id: str = env_id or env.spec.id  # type: ignore[union-attr]
         self.render_layout: Layout | None = None  # None: off
 
     def enable_render_states(self, layout: Layout) -> int:

@@ -135,14 +135,16 @@ class WebTeacher:
         from sb3_pride.human.render import SegmentRenderer, enable_render_states
 
         assert model.env is not None
-        specs = model.env.get_attr("spec")
-        if specs[0] is None:
+        try:
+            env_id = model.env.get_attr("render_env_id")[0]
+        except AttributeError:
             raise ValueError(
-                "WebTeacher re-renders segments in an env of its own, made from the env's registered id: make the env "
-                "with gymnasium.make('sb3_pride/...') (or pass the id), not from an unregistered class"
-            )
-        if self._renderer is None or self._renderer.env_id != specs[0].id:
-            self._renderer = SegmentRenderer(specs[0].id, width=self.width, height=self.height)
+                "WebTeacher re-renders segments from the simulator states that RenderStates records: make the env as "
+                "'sb3_pride/<domain>-<task>-v0' (dm_control) or 'sb3_pride/<task>-v3' (Meta-World), or wrap a MuJoCo env "
+                "with sb3_pride.human.RenderStates(env, env_id=...)"
+            ) from None
+        if self._renderer is None or self._renderer.env_id != env_id:
+            self._renderer = SegmentRenderer(env_id, width=self.width, height=self.height)
         enable_render_states(model.env, self._renderer.layout)
         model.real_buffer.record_render_states = True
         self._model = model
