@@ -177,3 +177,11 @@ def _wait(condition, timeout: float = 60.0):
             return value
         time.sleep(0.05)
     raise AssertionError("timed out waiting for the page")
+
+
+def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session, capsys):
+    teacher = open_session
+    teacher.reminder_interval, teacher.timeout = 0.1, 0.45
+    teacher._wait_for_answers()  # nobody answers: the page was never opened
+    reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
+    assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
