@@ -146,18 +146,29 @@ def aggregate(groups, out: Path) -> dict:
 def improvements(groups) -> dict:
     """
     P(X > Y) on the final true return, with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
-    PRIDE configuration of a task against PEBBLE at the task's largest budget (Figs. 2 and 4), and PRIDE at u = 0.5
-    against every other u at the same budget (Fig. 5). Pairs where either side has fewer than two seeds are left out.
+    PRIDE configuration of a task against every PEBBLE configuration (each UTD) at the task's largest budget and at
+    its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u at the same budget (Fig. 5), and each tagged
+    PEBBLE variant against plain PEBBLE at its budget. Pairs where either side has fewer than two seeds are left out.
     """
     from rliable import metrics
 
     pairs = {}
     for (task, name), runs in groups.items():
         settings = runs[0]["settings"]
+        pebbles = [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pebble"]
+        if settings["algo"] == "pebble":  # a PEBBLE variant (e.g. another UTD) against plain PEBBLE, same budget
+            if settings.get("tag"):
+                rivals = [(n, r) for n, r in pebbles if not r[0]["settings"].get("tag")
+                          and r[0]["settings"]["feedback"] == settings["feedback"]]  # fmt: skip
+                for rival_name, rival in rivals:
+                    if min(len(runs), len(rival)) >= 2:
+                        pairs[f"{task}: {name} > {rival_name}"] = [final_returns(g)[:, None] for g in (runs, rival)]
+            continue
         if settings["algo"] != "pride":
             continue
-        rivals = [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pebble"]
-        rivals = [max(rivals, key=lambda item: item[1][0]["settings"]["feedback"])] if rivals else []
+        # every PEBBLE at the task's largest budget (each UTD), and at this configuration's own budget
+        budgets = {max((r[0]["settings"]["feedback"] for _, r in pebbles), default=None), settings["feedback"]}
+        rivals = [(n, r) for n, r in pebbles if r[0]["settings"]["feedback"] in budgets]
         if settings["ratio"] == 0.5:  # Fig. 5: u = 0.5 against the other ratios
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
                        and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5]  # fmt: skip

@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Issue 9: the best PRIDE (faithful generator + delayed, ramped, filtered mixing, UTD 1; the walker grid's
+# configuration) against PEBBLE on cheetah-run at the CPU tier, 400 queries, seeds 0-2. Two queues, one run per core,
+# interleaved so that a cut-off grid still has matching seeds. Resumable: finished runs are skipped.
+# WAIT_FOR=<pid> delays the second queue until that process ends (a core still busy with another run).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+OUT=${OUT:-benchmarks/results/runs}
+FAITHFUL="model_state_change=true generation=near_real anchor_noise=0.25 diffusion_blocks=3 diffusion_train_steps=2000
+  diffusion_sample_steps=8 synthetic_keep_quantile=0.5 diffusion_window=20000 synthetic_start=10000 synthetic_ramp=5000"
+RUN="python benchmarks/run.py --tier cpu --tasks cheetah-run --feedback 400 --out $OUT"
+# shellcheck disable=SC2086
+(
+  $RUN --algos pebble --seeds 0
+  $RUN --algos pride --seeds 1 --tag faithful --set $FAITHFUL
+  $RUN --algos pebble --seeds 2
+) &
+# shellcheck disable=SC2086
+(
+  while [ -n "${WAIT_FOR:-}" ] && kill -0 "$WAIT_FOR" 2> /dev/null; do sleep 20; done
+  $RUN --algos pride --seeds 0 --tag faithful --set $FAITHFUL
+  $RUN --algos pebble --seeds 1
+  $RUN --algos pride --seeds 2 --tag faithful --set $FAITHFUL
+) &
+wait
