@@ -12,14 +12,12 @@ import argparse
 import os
 import time
 
-os.environ.setdefault("MUJOCO_GL", "disable")
-
-from stable_baselines3.common.evaluation import evaluate_policy
-
 import torch as th
 import yaml
+from stable_baselines3.common.evaluation import evaluate_policy
 
 import sb3_pride
+from sb3_pride.human.render import use_headless_gl
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
 #: the demo is shorter than a CPU-tier run (hyperparams/cpu/): less pre-training, a smaller budget
@@ -43,6 +41,11 @@ def main() -> None:
     parser.add_argument("--preference-journal", default=None, help="a JSON-lines file that keeps every answer (see README)")
     parser.add_argument("--no-progress-bar", action="store_true", help="no progress bar (SB3's, with tqdm and rich)")
     args = parser.parse_args()
+    # before the env is made (MuJoCo reads MUJOCO_GL once): a person's clips need headless EGL where no display is;
+    # a scripted teacher renders nothing (and dm_control must not try to open a display)
+    if args.teacher == "web":
+        use_headless_gl()
+    os.environ.setdefault("MUJOCO_GL", "disable")
     th.set_num_threads(args.threads)
 
     # the CPU tier's settings for this env (walker-walk's for an env the tier has no entry for)

@@ -12,6 +12,7 @@ the renderer's own, and encoded as clips any browser plays.
   encoder (the ``[human]`` extra; no system ffmpeg).
 """
 
+import ctypes.util
 import os
 import sys
 from fractions import Fraction
@@ -40,12 +41,15 @@ METAWORLD_CAMERA = "corner3"
 
 def use_headless_gl() -> None:
     """
-    Headless rendering needs ``MUJOCO_GL=egl``, read once when MuJoCo is imported: set it (where no display is and
-    it is not set) before the first env is made. A WebTeacher does this when it is created.
+    Headless rendering needs ``MUJOCO_GL=egl``, read once when MuJoCo is imported. Where it is not set, no display
+    is, MuJoCo is not imported yet and Mesa's (or a GPU driver's) libEGL is installed, set it: a WebTeacher does when
+    it is created (``teacher="web"`` and the demo's ``--teacher web`` too). Nothing else in the package changes
+    ``MUJOCO_GL``: dm_control refuses to import where it names an EGL that cannot start.
     """
-    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY") and not os.environ.get("WAYLAND_DISPLAY"):
-        if "mujoco" not in sys.modules:
-            os.environ["MUJOCO_GL"] = "egl"
+    if "MUJOCO_GL" in os.environ or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return
+    if "mujoco" not in sys.modules and ctypes.util.find_library("EGL"):
+        os.environ["MUJOCO_GL"] = "egl"
 
 
 def egl_available() -> bool:
