@@ -147,8 +147,8 @@ def improvements(groups) -> dict:
     """
     P(X > Y) on the final true return, with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
     PRIDE configuration of a task against every PEBBLE configuration (each UTD) at the task's largest budget and at
-    its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u at the same budget (Fig. 5), and each tagged
-    PEBBLE variant against plain PEBBLE at its budget. Pairs where either side has fewer than two seeds are left out.
+    its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u at the same budget (Fig. 5), each tagged
+    PEBBLE variant against plain PEBBLE at its budget, and plain PEBBLE at a smaller budget against the largest. Pairs where either side has fewer than two seeds are left out.
     """
     from rliable import metrics
 
@@ -156,10 +156,12 @@ def improvements(groups) -> dict:
     for (task, name), runs in groups.items():
         settings = runs[0]["settings"]
         pebbles = [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pebble"]
-        if settings["algo"] == "pebble":  # a PEBBLE variant (e.g. another UTD) against plain PEBBLE, same budget
-            if settings.get("tag"):
+        if settings["algo"] == "pebble":  # a PEBBLE variant (another UTD, a smaller budget) against plain PEBBLE
+            largest = max(r[0]["settings"]["feedback"] for _, r in pebbles)
+            budget = settings["feedback"] if settings.get("tag") else largest
+            if settings.get("tag") or settings["feedback"] < largest:
                 rivals = [(n, r) for n, r in pebbles if not r[0]["settings"].get("tag")
-                          and r[0]["settings"]["feedback"] == settings["feedback"]]  # fmt: skip
+                          and r[0]["settings"]["feedback"] == budget]  # fmt: skip
                 for rival_name, rival in rivals:
                     if min(len(runs), len(rival)) >= 2:
                         pairs[f"{task}: {name} > {rival_name}"] = [final_returns(g)[:, None] for g in (runs, rival)]
