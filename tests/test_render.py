@@ -105,3 +105,19 @@ def test_clips_are_h264_yuv420p_fast_start_at_the_env_frame_rate(tmp_path):
         assert stream.average_rate == 40 and (stream.width, stream.height) == (64, 48)
         assert sum(1 for _ in container.decode(stream)) == 30
     assert not list(tmp_path.glob("*.part"))
+
+
+def test_pride_records_states_in_its_real_buffer_and_a_saved_web_teacher_comes_back(tiny_kwargs, tmp_path):
+    from sb3_pride import PRIDE
+
+    tiny_kwargs.update(buffer_size=200, unsupervised_steps=10**6, synthetic_samples=64)
+    model = PRIDE("MlpPolicy", "sb3_pride/button-press-v3", teacher=WebTeacher(port=0), **tiny_kwargs)
+    model.learn(120)
+    states = model.real_buffer.render_states
+    assert states is not None and states.shape == (200, 1, 29) and np.all(states[:120].any(axis=-1))
+    model.teacher.close()
+    model.save(tmp_path / "model.zip")
+    loaded = PRIDE.load(tmp_path / "model.zip", env=model.get_env())  # the teacher's settings, a new server
+    assert isinstance(loaded.teacher, WebTeacher) and loaded.teacher._server is not None
+    assert loaded.real_buffer.record_render_states
+    loaded.teacher.close()
