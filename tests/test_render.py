@@ -121,3 +121,24 @@ def test_pride_records_states_in_its_real_buffer_and_a_saved_web_teacher_comes_b
     assert isinstance(loaded.teacher, WebTeacher) and loaded.teacher._server is not None
     assert loaded.real_buffer.record_render_states
     loaded.teacher.close()
+
+
+def test_buffers_from_the_other_kind_of_teacher(tiny_kwargs, tmp_path):
+    """A scripted run's buffer has no states to show: a WebTeacher refuses it. A WebTeacher run's buffer resumed with a
+    scripted teacher records nothing more (its saved flag is reset), and trains."""
+    tiny_kwargs.update(buffer_size=200, unsupervised_steps=10**6)
+    scripted = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", **tiny_kwargs)
+    scripted.learn(50)
+    scripted.save_replay_buffer(tmp_path / "scripted.pkl")
+    web = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=WebTeacher(port=0), **tiny_kwargs)
+    with pytest.raises(ValueError, match="50 transitions recorded without simulator states"):
+        web.load_replay_buffer(tmp_path / "scripted.pkl")
+    web.teacher.close()
+
+    web = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=WebTeacher(port=0), **tiny_kwargs)
+    web.learn(50)
+    web.save_replay_buffer(tmp_path / "web.pkl")
+    web.teacher.close()
+    scripted.load_replay_buffer(tmp_path / "web.pkl")
+    assert not scripted.replay_buffer.record_render_states
+    scripted.learn(20, reset_num_timesteps=False)

@@ -88,13 +88,14 @@ def test_bad_settings_name_the_parameter():
             WebTeacher(**kwargs)
 
 
-def test_a_timeout_skips_the_rest(open_session):
+def test_a_timeout_skips_the_rest(open_session, capsys):
     teacher = open_session
     teacher.timeout, session = 0.3, teacher._session
     teacher.answer("a", 1)
-    teacher._wait_for_answers()
+    assert teacher._wait_for_answers() is session and teacher._session is None
     assert session.queries[0].label == 1 and np.isnan(session.queries[1].label)
     assert len(teacher._model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
+    assert "timeout, 1 queries skipped" in capsys.readouterr().out
 
 
 def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path):
@@ -185,3 +186,22 @@ def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session
     teacher._wait_for_answers()  # nobody answers: the page was never opened
     reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
     assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
+
+
+def test_answers_come_in_order_and_nothing_reaches_a_closed_session(open_session):
+    teacher = open_session
+    status, _, reply = request(teacher.url + "api/answer", {"id": "b", "label": 1})  # "a" comes first
+    assert status == 400 and "in order" in json.loads(reply)["error"]
+    teacher.answer("a", 0)
+    teacher.answer("b", 1)
+    session = teacher._wait_for_answers()  # all answered: the session closes
+    assert [q.label for q in session.queries] == [0, 1] and teacher._session is None
+    status, _, _ = request(teacher.url + "api/undo", {})  # a late Backspace
+    assert status == 400
+    assert [entry.label for entry in teacher._model.journal_history()] == [0, 1]
+
+
+def test_clips_being_written_are_not_served(open_session):
+    (open_session._clips_folder() / "a-left.mp4.part").write_bytes(b"half a clip")
+    status, _, _ = request(open_session.url + "clips/a-left.mp4.part")
+    assert status == 404

@@ -89,7 +89,10 @@ def frame_rate(env: gym.Env) -> float:
     control = getattr(getattr(unwrapped, "_env", None), "control_timestep", None)
     dt = control() if callable(control) else getattr(unwrapped, "dt", None)
     if not dt:
-        raise ValueError(f"cannot tell the duration of one step of {env.spec.id if env.spec else env}")
+        raise ValueError(
+            f"cannot tell the duration of one step of {env.spec.id if env.spec else env} (no control_timestep or dt): "
+            "WebTeacher plays clips at the env's real speed; give the env a dt attribute"
+        )
     return 1.0 / float(dt)
 
 
@@ -228,8 +231,14 @@ class SegmentRenderer:
         #: the model fields a reset of this task re-draws, recorded with every state
         self.layout = randomized_model_fields(self.env)
         if camera is None:
-            camera = 0 if self.model.ncam and hasattr(self.env.unwrapped, "_env") else METAWORLD_CAMERA
+            cameras = [self.model.camera(i).name for i in range(self.model.ncam)]
+            if hasattr(self.env.unwrapped, "_env"):  # dm_control: the task's own first camera
+                camera = 0 if cameras else -1
+            else:
+                camera = METAWORLD_CAMERA if METAWORLD_CAMERA in cameras else -1  # -1: MuJoCo's free camera
         self.camera = camera
+        #: the length of one recorded state of this env
+        self.state_size = len(capture_state(self.model, self.data, self.layout))
         try:  # fail now (no GL, a bad camera), not at the first feedback session
             self.render(capture_state(self.model, self.data, self.layout)[None])
         except ValueError:

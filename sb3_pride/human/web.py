@@ -7,6 +7,7 @@ Answers go to the model's preference journal the moment they are given (``PEBBLE
 run killed mid-session loses none.
 """
 
+import atexit
 import shutil
 import tempfile
 import threading
@@ -72,6 +73,8 @@ class WebTeacher:
     :param height: clip height in pixels
     :param clip_dir: where the clips are written (None: a temporary folder removed at exit)
     :param reminder_interval: seconds between console reminders (with the URL) while answers are awaited
+    :param camera: the MuJoCo camera of the clips, by name or id (None: dm_control's first camera, Meta-World's
+        "corner3", the free camera for other MuJoCo envs)
     """
 
     #: each answer is written to the model's preference journal as it is given (not by the feedback session)
@@ -86,6 +89,7 @@ class WebTeacher:
         height: int = 240,
         clip_dir: str | Path | None = None,
         reminder_interval: float = 60.0,
+        camera: str | int | None = None,
     ):
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ValueError(f"port must be an integer in [0, 65535], got {port!r}")
@@ -102,6 +106,7 @@ class WebTeacher:
         self.port, self.host, self.timeout = port, host, timeout
         self.width, self.height, self.reminder_interval = width, height, reminder_interval
         self.clip_dir = None if clip_dir is None else Path(clip_dir)
+        self.camera = camera
         self._init_runtime()
 
     def _init_runtime(self) -> None:
@@ -115,7 +120,7 @@ class WebTeacher:
 
     # a saved model keeps the settings, not the server
     def __getstate__(self) -> dict:
-        keep = ("port", "host", "timeout", "width", "height", "clip_dir", "reminder_interval")
+        keep = ("port", "host", "timeout", "width", "height", "clip_dir", "reminder_interval", "camera")
         return {name: self.__dict__[name] for name in keep}
 
     def __setstate__(self, state: dict) -> None:
@@ -143,11 +148,24 @@ class WebTeacher:
                 "'sb3_pride/<domain>-<task>-v0' (dm_control) or 'sb3_pride/<task>-v3' (Meta-World), or wrap a MuJoCo env "
                 "with sb3_pride.human.RenderStates(env, env_id=...)"
             ) from None
+        buffer = model.real_buffer
+        if buffer.size() > 0 and buffer.render_states is None:
+            raise ValueError(
+                f"the replay buffer holds {buffer.size()} transitions recorded without simulator states (by a scripted "
+                "teacher's run): a WebTeacher could not show segments of them. Resume a WebTeacher run's buffer, or start "
+                "from an empty one"
+            )
         if self._renderer is None or self._renderer.env_id != env_id:
-            self._renderer = SegmentRenderer(env_id, width=self.width, height=self.height)
-        enable_render_states(model.env, self._renderer.layout)
-        model.real_buffer.record_render_states = True
+            self._renderer = SegmentRenderer(env_id, width=self.width, height=self.height, camera=self.camera)
+        state_size = enable_render_states(model.env, self._renderer.layout)
+        if state_size != self._renderer.state_size:
+            raise ValueError(
+                f"the env records states of {state_size} numbers but a fresh {env_id!r} has {self._renderer.state_size}: "
+                "RenderStates(env, env_id=...) must name an id that makes this same env"
+            )
+        buffer.record_render_states = True
         self._model = model
+        self._clips_folder()  # made now, not by two threads at once
         self._start_server()
 
     def _start_server(self) -> None:
@@ -165,7 +183,10 @@ class WebTeacher:
         threading.Thread(target=self._server.serve_forever, name="WebTeacher", daemon=True).start()
 
     def close(self) -> None:
-        """Stop the web server and remove the temporary clips."""
+        """Stop the web server, close the renderer's env and remove the temporary clips."""
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()
@@ -180,6 +201,7 @@ class WebTeacher:
             return self.clip_dir
         if self._temporary_dir is None:
             self._temporary_dir = tempfile.mkdtemp(prefix="sb3_pride_clips_")
+            atexit.register(shutil.rmtree, self._temporary_dir, ignore_errors=True)
         return Path(self._temporary_dir)
 
     # a feedback session -----------------------------------------------------------------------------------------
@@ -210,14 +232,15 @@ class WebTeacher:
                 with self._condition:
                     query.ready = True
                     self._condition.notify_all()
-            self._wait_for_answers()
-        finally:
+            session = self._wait_for_answers()
+        except BaseException:
             with self._condition:
-                session, self._session = self._session, None
-        assert session is not None
+                self._session = None
+            raise
         return np.array([np.nan if query.label is None else query.label for query in session.queries])
 
-    def _wait_for_answers(self) -> None:
+    def _wait_for_answers(self) -> _Session:
+        """Wait until every query is answered (or the timeout skips the rest), then close the session and return it."""
         start = last_reminder = time.monotonic()
         with self._condition:
             assert self._session is not None
@@ -225,9 +248,10 @@ class WebTeacher:
                 now = time.monotonic()
                 if self.timeout is not None and now - start >= self.timeout:
                     # the rest are skipped: asked, not labeled, and journaled as such
-                    for query in self._session.unanswered():
+                    skipped = self._session.unanswered()
+                    for query in skipped:
                         self._record(query, None)
-                    print(f"WebTeacher: timeout, {len(self._session.queries) - self._session.n_answered} skipped")
+                    print(f"WebTeacher: timeout, {len(skipped)} queries skipped", flush=True)
                     break
                 if now - last_reminder >= self.reminder_interval:
                     last_reminder = now
@@ -241,13 +265,17 @@ class WebTeacher:
                 if self.timeout is not None:
                     wait = min(wait, self.timeout - (now - start))
                 self._condition.wait(timeout=max(wait, 0.01))
+            # closed in the same locked block: no answer or undo can reach it once it is over
+            session, self._session = self._session, None
+            return session
 
     def _record(self, query: _Query, label: float | None) -> None:
-        """An answer: kept, then journaled (flushed to disk) before anything else happens. Holds the lock."""
+        """An answer: journaled (flushed to disk) first, then kept, so that a failed write changes nothing. Holds the lock."""
         assert self._session is not None and self._model is not None
-        query.label, query.answered = (np.nan if label is None else label), True
+        value = np.nan if label is None else float(label)
+        self._model.record_answers([JournalEntry(self._session.number, query.inputs, value)])
+        query.label, query.answered = value, True
         self._session.answer_order.append(query.id)
-        self._model.record_answers([JournalEntry(self._session.number, query.inputs, float(query.label))])
         self._condition.notify_all()
 
     # the web page -----------------------------------------------------------------------------------------------
@@ -282,10 +310,13 @@ class WebTeacher:
         with self._condition:
             session = self._session
             query = next((q for q in session.queries if q.id == query_id), None) if session else None
-            if query is None or not query.ready:
+            if session is None or query is None or not query.ready:
                 return False, f"no open query {query_id!r} in this feedback session (or its clips are not ready)"
             if query.answered:
                 return False, f"query {query_id!r} is already answered (undo first)"
+            first_open = next(q for q in session.queries if not q.answered)
+            if query is not first_open:  # in order: the journal and the preference dataset then agree on the order
+                return False, f"answer the queries in order: the next one is {first_open.id!r}, not {query_id!r}"
             self._record(query, None if label is None else float(label))
             return True, "recorded"
 
@@ -295,11 +326,11 @@ class WebTeacher:
             session = self._session
             if session is None or not session.answer_order:
                 return False, "no answer of this feedback session to undo"
+            assert self._model is not None
+            self._model.retract_answer(session.number)  # journaled first, as answers are
             last = session.answer_order.pop()
             query = next(q for q in session.queries if q.id == last)
             query.label, query.answered = None, False
-            assert self._model is not None
-            self._model.retract_answer(session.number)
             return True, query.id
 
     def _make_app(self) -> Any:
@@ -332,6 +363,22 @@ class WebTeacher:
         @app.get("/clips/<name>")
         def clip(name: str) -> Any:
             # conditional=True: HTTP Range requests (seeking and looping video need them), ETag, 304s
+            if not name.endswith(".mp4"):  # not a clip being written (.part)
+                return jsonify(error=f"no clip {name!r}"), 404
             return send_from_directory(self._clips_folder(), name, mimetype="video/mp4", conditional=True)
 
         return app
+
+
+_shared: WebTeacher | None = None
+
+
+def shared_web_teacher() -> WebTeacher:
+    """
+    The teacher of ``teacher="web"``: one ``WebTeacher()`` (port 8000) per process, attached to the last model made
+    or loaded with it, so that a second model in the same process (a resumed run) finds the port its own.
+    """
+    global _shared
+    if _shared is None:
+        _shared = WebTeacher()
+    return _shared

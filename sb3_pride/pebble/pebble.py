@@ -408,15 +408,15 @@ class PEBBLE(SAC):
     def resolve_teacher(self) -> Teacher:
         """
         The teacher object: a preset name becomes a ScriptedTeacher once (its random state is then saved); "web" a
-        ``sb3_pride.human.WebTeacher`` on port 8000 (the ``[human]`` extra), made once per process.
+        ``sb3_pride.human.WebTeacher`` on port 8000 (the ``[human]`` extra), one per process (``shared_web_teacher``).
         """
         if not isinstance(self.teacher, str):
             return self.teacher
         if self.teacher == WEB_TEACHER:
             if self._web_teacher is None:
-                from sb3_pride.human import WebTeacher  # the [human] extra: imported only when asked for
+                from sb3_pride.human.web import shared_web_teacher  # the [human] extra: imported only when asked for
 
-                self._web_teacher = WebTeacher()
+                self._web_teacher = shared_web_teacher()
             return self._web_teacher
         if self._scripted_teacher is None or self._scripted_teacher[0] != self.teacher:
             self._scripted_teacher = (self.teacher, make_teacher(self.teacher, seed=self.seed))
@@ -429,7 +429,10 @@ class PEBBLE(SAC):
         env it cannot show fails now, not at the first feedback session.
         """
         attach = getattr(self.resolve_teacher(), "attach", None)
-        if callable(attach) and self.env is not None:
+        if not callable(attach):  # a teacher that does not watch: record no states (a resumed buffer may say so)
+            if getattr(self, "replay_buffer", None) is not None:
+                self.real_buffer.record_render_states = False
+        elif self.env is not None:
             attach(self)
 
     def ask_teacher(self, pairs: SegmentPairs) -> np.ndarray:
