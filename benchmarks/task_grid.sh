@@ -1,14 +1,18 @@
 #!/usr/bin/env bash
 # Issue 9: the best PRIDE (faithful generator + delayed, ramped, filtered mixing, UTD 1; the walker grid's
-# configuration) against PEBBLE on cheetah-run at the CPU tier, 400 queries, seeds 0-2. Two queues, one run per core,
+# configuration) against PEBBLE on another task at the CPU tier, seeds 0-2. Two queues, one run per core,
 # interleaved so that a cut-off grid still has matching seeds. Resumable: finished runs are skipped.
+#   TASK=cheetah-run FEEDBACK=400 benchmarks/task_grid.sh         (the default)
+#   TASK=button-press-v3 FEEDBACK=2000 benchmarks/task_grid.sh    (Meta-World: the tier's feedback budget)
 # WAIT_FOR=<pid> delays the second queue until that process ends (a core still busy with another run).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-benchmarks/results/runs}
+TASK=${TASK:-cheetah-run}
+FEEDBACK=${FEEDBACK:-400}
 FAITHFUL="model_state_change=true generation=near_real anchor_noise=0.25 diffusion_blocks=3 diffusion_train_steps=2000
   diffusion_sample_steps=8 synthetic_keep_quantile=0.5 diffusion_window=20000 synthetic_start=10000 synthetic_ramp=5000"
-RUN="python benchmarks/run.py --tier cpu --tasks cheetah-run --feedback 400 --out $OUT"
+RUN="python benchmarks/run.py --tier cpu --tasks $TASK --feedback $FEEDBACK --out $OUT"
 # shellcheck disable=SC2086
 (
   $RUN --algos pebble --seeds 0
