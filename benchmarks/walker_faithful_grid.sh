@@ -8,8 +8,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 OUT=${OUT:-benchmarks/results/runs}
 SEEDS=${SEEDS:-0 1 2 3 4}
-FAITHFUL="model_state_change=true generation=near_real anchor_noise=0.25 diffusion_blocks=3 diffusion_train_steps=2000
-  diffusion_sample_steps=8 synthetic_keep_quantile=0.5 diffusion_window=20000 synthetic_start=10000 synthetic_ramp=5000"
+. benchmarks/faithful.sh  # FAITHFUL: the --set pairs of the "faithful" variant
 python benchmarks/run.py --tier cpu --tasks walker-walk --algos pebble --feedback 400 --seeds $SEEDS --out "$OUT" &
 # shellcheck disable=SC2086
 python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 400 --seeds $SEEDS --out "$OUT" \
