@@ -31,13 +31,14 @@ import numpy as np
 import torch as th
 
 import sb3_pride  # noqa: F401  (registers the environments)
+from run import env_id  # benchmarks/run.py, beside this script
 from sb3_pride.common.diffusion import ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions
 from sb3_pride.pride.pride import add_states_to_next_states
 
 
-def collect(n: int, seed: int) -> np.ndarray:
-    env = gym.make("sb3_pride/walker-walk-v0")
+def collect(task: str, n: int, seed: int) -> np.ndarray:
+    env = gym.make(env_id(task))
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
     action = np.zeros(env.action_space.shape, dtype=np.float32)
@@ -66,6 +67,15 @@ def table(paths: list[Path]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument(
+        "--task", default="walker-walk", help="a task of benchmarks/run.py (walker-walk, button-press-v3, ...)"
+    )
+    parser.add_argument(
+        "--normalization",
+        choices=["per_dimension", "whiten"],
+        default="per_dimension",
+        help="the generator's normalization (ElucidatedDiffusion's normalization)",
+    )
     parser.add_argument("--transitions", type=int, default=20_000)
     parser.add_argument("--samples", type=int, default=10_000, help="synthetic transitions per configuration")
     parser.add_argument("--seed", type=int, default=0)
@@ -83,9 +93,9 @@ def main() -> None:
         print(table(args.table))
         return
     th.set_num_threads(1)
-    real = collect(args.transitions, args.seed)
-    obs_dim = (real.shape[1] - 6) // 2
-    action_dim = 6
+    real = collect(args.task, args.transitions, args.seed)
+    action_dim = gym.make(env_id(args.task)).action_space.shape[0]
+    obs_dim = (real.shape[1] - action_dim) // 2
     dim = real.shape[1]
     start = time.perf_counter()
     yardstick = DynamicsEnsemble(obs_dim, action_dim, train_steps=3000, seed=args.seed)
@@ -97,7 +107,8 @@ def main() -> None:
     done = {row["name"] for row in rows}
 
     def report(name: str, synthetic: np.ndarray, fit_seconds: float, generate_seconds: float, **config) -> None:
-        config = dict(representation=args.representation, **config) if config else config
+        if config:
+            config = dict(task=args.task, representation=args.representation, normalization=args.normalization, **config)
         fidelity = measure_fidelity(yardstick, real, synthetic, obs_dim, action_dim, refit=False)
         row = dict(name=name, **config, fit_seconds=round(fit_seconds, 2), generate_seconds=round(generate_seconds, 2),
                    seconds_per_10k_samples=round(generate_seconds / max(len(synthetic), 1) * 10_000, 2),
@@ -105,7 +116,7 @@ def main() -> None:
         rows.append(row)
         print(json.dumps(row), flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(dict(transitions=args.transitions, samples=args.samples, seed=args.seed,
+        args.out.write_text(json.dumps(dict(task=args.task, transitions=args.transitions, samples=args.samples, seed=args.seed,
                                             yardstick_fit_seconds=round(yardstick_seconds, 2), rows=rows), indent=1))  # fmt: skip
 
     def wanted(name: str) -> bool:
@@ -138,7 +149,7 @@ def main() -> None:
 
     def model(width: int, blocks: int, train_steps: int, sample_steps: int, warm_start: bool = False) -> ElucidatedDiffusion:
         return ElucidatedDiffusion(dim, width=width, n_blocks=blocks, train_steps=train_steps, sample_steps=sample_steps,
-                                   warm_start=warm_start, seed=args.seed)  # fmt: skip
+                                   warm_start=warm_start, normalization=args.normalization, seed=args.seed)  # fmt: skip
 
     # unconditional generation (the paper's and SynthER's), size x budget x sampler steps
     fitted: dict[tuple, tuple[ElucidatedDiffusion, float]] = {}

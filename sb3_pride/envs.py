@@ -81,6 +81,32 @@ class EpisodeSuccess(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+class SeededTasks(gym.Wrapper):
+    """
+    Makes a Meta-World MT1 env repeatable from ``reset(seed=...)``, as SB3's ``make_vec_env(..., seed=...)`` and
+    every gymnasium env expect. MT1 draws its 50 task variations (object and goal positions) from numpy's global
+    RNG when the env is built, and picks one at each reset *before* the reset's seed takes effect, so two runs with
+    the same seed saw different tasks. On a seeded reset this wrapper draws the variations from that seed (numpy's
+    global RNG is left as it was) and seeds the picker first.
+    """
+
+    def __init__(self, env: gym.Env, env_name: str):
+        super().__init__(env)
+        self.env_name = env_name
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
+        if seed is not None:
+            import metaworld
+
+            picker = self.env
+            while not hasattr(picker, "tasks"):  # Meta-World's task-select wrapper, wherever it sits
+                assert isinstance(picker, gym.Wrapper), "no Meta-World task-select wrapper found"
+                picker = picker.env
+            picker.tasks = metaworld.MT1(self.env_name, seed=seed).train_tasks  # type: ignore[attr-defined]
+            self.unwrapped.np_random = gym.utils.seeding.np_random(seed)[0]
+        return self.env.reset(seed=seed, options=options)
+
+
 def make_dm_control(domain_task: str, **kwargs) -> gym.Env:
     """A DMC suite task, e.g. ``"walker-walk"``, with flattened float32 observations."""
     import shimmy
@@ -103,7 +129,7 @@ def make_metaworld(env_name: str, seed: int | None = None, **kwargs) -> gym.Env:
         disable_env_checker=True,  # it flags the goal that Meta-World declares in [0, 0]
         **kwargs,
     )
-    return RenderStates(Float32Observation(EpisodeSuccess(env)), env_id=f"{NAMESPACE}/{env_name}")
+    return RenderStates(Float32Observation(EpisodeSuccess(SeededTasks(env, env_name))), env_id=f"{NAMESPACE}/{env_name}")
 
 
 def register_envs() -> None:

@@ -169,3 +169,22 @@ def test_the_demo_shows_a_progress_bar(tmp_path):
     assert result.returncode == 0, result.stderr[-2000:]
     assert "300/300" in result.stdout + result.stderr  # SB3's progress bar (tqdm + rich), at its end
     assert "true return of the final policy" in result.stdout
+
+
+def test_metaworld_runs_repeat_from_their_seed():
+    # MT1 draws its task variations from numpy's global RNG when built and picks one before the reset's seed takes
+    # effect: without SeededTasks two runs with the same seed saw different objects and goals
+    def first_steps(seed):
+        env = make_vec_env("sb3_pride/button-press-v3", n_envs=2, seed=seed)
+        env.action_space.seed(seed)
+        state = np.random.get_state()[1].copy()
+        rows = [env.reset()]
+        np.testing.assert_array_equal(np.random.get_state()[1], state)  # the seeded reset leaves numpy's global RNG
+        for _ in range(5):
+            rows.append(env.step(np.stack([env.action_space.sample() for _ in range(2)]))[0])
+        return np.stack(rows)
+
+    first = first_steps(0)
+    np.testing.assert_array_equal(first_steps(0), first)
+    assert not np.array_equal(first_steps(1), first)
+    assert not np.array_equal(first[:, 0], first[:, 1])  # the two envs (seeds 0 and 1) differ too

@@ -84,3 +84,23 @@ def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_pat
     # real transitions drawn back (copies) are at most as inconsistent as held-out real ones
     assert np.all(ratios["faithful"] < 1.5)
     assert np.all(ratios["corrupted"] > 2.5)
+
+
+def test_dimensions_that_never_change_are_left_out():
+    # Meta-World's goal coordinates and zero padding: s' = s exactly. Generator noise there of 1e-6 must not read
+    # as dozens of typical steps; wrong next states in the dimensions that move must still be flagged.
+    rng = np.random.default_rng(3)
+    goal = lambda vectors: np.insert(np.insert(vectors, 3, 0.7, axis=1), 8, 0.7, axis=1)  # noqa: E731
+    real = goal(pendulum_transitions(3000, seed=0))
+    dynamics = DynamicsEnsemble(4, 1, seed=0, **TINY_DYNAMICS)
+    measure_fidelity(dynamics, real, real[:10], 4, 1)
+    fresh = goal(pendulum_transitions(1000, seed=1))
+    jittered = fresh.copy()
+    jittered[:, 8] += 1e-6 * rng.normal(size=len(fresh))
+    corrupted = fresh.copy()
+    corrupted[:, 5:8] += 2.0 * (fresh[:, 5:8] - fresh[:, :3]).std(axis=0) * rng.choice([-1, 1], size=(len(fresh), 3))
+    assert dynamics.changing.tolist() == [True, True, True, False]
+    assert measure_fidelity(dynamics, real, jittered, 4, 1, refit=False).dynamics_error_ratio < 1.5
+    assert measure_fidelity(dynamics, real, corrupted, 4, 1, refit=False).dynamics_error_ratio > 2.5
+    dynamics.changing[:] = True  # the bad case: every dimension counted, the jitter reads as a broken generator
+    assert measure_fidelity(dynamics, real, jittered, 4, 1, refit=False).dynamics_error_ratio > 2.5

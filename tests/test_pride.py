@@ -118,12 +118,24 @@ def test_save_load_predict_identical(tiny_kwargs, tmp_path):
     assert loaded.synthetic_ratio == 0.5 and loaded.diffusion_interval == 300
 
 
-def test_short_run_on_metaworld(tiny_kwargs):
+def test_short_run_on_metaworld_with_a_whitened_diffusion(tiny_kwargs, tmp_path):
     tiny_kwargs.update(max_feedback=40)
-    model = PRIDE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, **tiny_kwargs, **TINY_DIFFUSION)
+    model = PRIDE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, diffusion_normalization="whiten", **tiny_kwargs,
+                  **TINY_DIFFUSION)  # fmt: skip
     model.learn(700)
     assert model.diffusion_retrains == 2 and model.replay_buffer.synthetic.size() == 2000
     assert len(model.ep_success_buffer) == 1
+    rotation = model.diffusion.rotation
+    assert th.allclose(rotation @ rotation.T, th.eye(len(rotation)), atol=1e-4)  # orthonormal principal axes
+    # the observation's previous frame: s' holds s's current frame exactly, and whitened samples keep that identity
+    # (a zero-variance direction); per-dimension normalization breaks it (here by up to 0.37)
+    synthetic = model.replay_buffer.synthetic
+    size = synthetic.size()
+    next_obs, obs = synthetic.next_observations[:size, 0], synthetic.observations[:size, 0]
+    np.testing.assert_allclose(next_obs[:, 18:36], obs[:, :18], atol=1e-3)
+    model.save(tmp_path / "pride")
+    loaded = PRIDE.load(tmp_path / "pride")
+    assert loaded.diffusion_normalization == "whiten" and th.equal(loaded.diffusion.rotation, rotation)
 
 
 def test_bad_input_names_the_parameter():

@@ -26,6 +26,7 @@ from hypothesis import strategies as st
 from sb3_pride import PEBBLE, PRIDE, TEACHER_PRESETS
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs
+from sb3_pride.common.diffusion import NORMALIZATIONS
 from sb3_pride.pride.pride import GENERATIONS, SYNTHETIC_FILTERS
 
 #: cheap models: Pendulum (200-step episodes), tiny networks, small buffers
@@ -139,6 +140,11 @@ PRIDE_INVALID = [
     *(Invalid(p, not_non_negative_int(), f"{p} must be a non-negative integer") for p in PRIDE_NON_NEGATIVE),
     Invalid("generation", not_one_of(GENERATIONS), f"generation must be one of {GENERATIONS}"),
     Invalid(
+        "diffusion_normalization",
+        not_one_of(NORMALIZATIONS),
+        f"diffusion_normalization must be one of {NORMALIZATIONS}",
+    ),
+    Invalid(
         "anchor_noise",
         st.one_of(st.floats(max_value=0.002), floats_above(80.0), st.just(math.nan)),
         "anchor_noise must be in (sigma_min=0.002, sigma_max=80.0]",
@@ -172,6 +178,7 @@ VALID = [
     (PRIDE, "synthetic_start", st.integers(0, 10**12)),
     (PRIDE, "synthetic_ramp", st.integers(0, 10**12)),
     (PRIDE, "generation", st.sampled_from(GENERATIONS)),
+    (PRIDE, "diffusion_normalization", st.sampled_from(NORMALIZATIONS)),
     (PRIDE, "anchor_noise", st.floats(0.002, 80.0, exclude_min=True)),
     (PRIDE, "synthetic_keep_quantile", st.floats(0.0, 1.0, exclude_min=True)),
     (PRIDE, "synthetic_filter", st.sampled_from(SYNTHETIC_FILTERS)),

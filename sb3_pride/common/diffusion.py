@@ -69,9 +69,18 @@ class FitInfo:
     seconds: float
 
 
+#: how the diffusion model normalizes its data (``normalization``)
+NORMALIZATIONS = ("per_dimension", "whiten")
+
+
 class ElucidatedDiffusion(nn.Module):
     """
-    An EDM diffusion model over flat vectors, z-scored per dimension (statistics refit at every ``fit``).
+    An EDM diffusion model over flat vectors, normalized (statistics refit at every ``fit``) either per dimension
+    (z-scores, SynthER's) or by whitening (PCA: z = ((x − μ) R) / √λ, with R the eigenvectors and λ the eigenvalues of
+    the data's covariance). Whitening matters where dimensions are strongly correlated: Meta-World's observation holds
+    the previous frame beside the current one, so a velocity is the small difference of two z-scored coordinates, and
+    per-dimension noise of σ = 0.25 wipes it out; after whitening that difference is a unit-variance direction of
+    its own, and the noise added along it is in proportion to its spread.
 
     Denoiser D(x; σ) = c_skip(σ)·x + c_out(σ)·F_θ(c_in(σ)·x, ln(σ)/4), with c_skip = σ_d²/(σ² + σ_d²),
     c_out = σσ_d/√(σ² + σ_d²), c_in = 1/√(σ² + σ_d²). Training minimizes λ(σ)·‖D(x + σn; σ) − x‖²,
@@ -95,12 +104,14 @@ class ElucidatedDiffusion(nn.Module):
     :param ema_decay: EMA decay (updated every ``ema_every`` steps, with a warm-up)
     :param warm_start: start each ``fit`` from the current EMA weights instead of a new initialization
     :param skip_normalization: dimensions left unnormalized (e.g. a 0/1 terminal flag)
+    :param normalization: ``"per_dimension"`` (z-scores) or ``"whiten"`` (PCA whitening of the other dimensions)
     :param seed: seed of the model's own random generators (the global torch/numpy RNGs are never touched)
     :param device: torch device
     """
 
     mean: th.Tensor
     std: th.Tensor
+    rotation: th.Tensor
 
     def __init__(
         self,
@@ -117,6 +128,7 @@ class ElucidatedDiffusion(nn.Module):
         ema_every: int = 10,
         warm_start: bool = True,
         skip_normalization: tuple[int, ...] = (),
+        normalization: str = "per_dimension",
         sigma_min: float = 0.002,
         sigma_max: float = 80.0,
         sigma_data: float = 1.0,
@@ -145,6 +157,9 @@ class ElucidatedDiffusion(nn.Module):
         self.ema_every = ema_every
         self.warm_start = warm_start
         self.skip_normalization = tuple(skip_normalization)
+        if normalization not in NORMALIZATIONS:
+            raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
+        self.normalization = normalization
         self.sigma_min, self.sigma_max, self.sigma_data, self.rho = sigma_min, sigma_max, sigma_data, rho
         self.p_mean, self.p_std = p_mean, p_std
         self.s_churn, self.s_tmin, self.s_tmax, self.s_noise = s_churn, s_tmin, s_tmax, s_noise
@@ -158,6 +173,8 @@ class ElucidatedDiffusion(nn.Module):
         self.ema = self._new_denoiser()
         self.register_buffer("mean", th.zeros(dim))
         self.register_buffer("std", th.ones(dim))
+        if normalization == "whiten":  # only then a buffer: models saved with per-dimension statistics still load
+            self.register_buffer("rotation", th.eye(dim))
         self.to(self.device_)
 
     def _new_denoiser(self) -> ResidualMLPDenoiser:
@@ -185,10 +202,30 @@ class ElucidatedDiffusion(nn.Module):
 
     # normalization -------------------------------------------------------------------------------------------
     def _fit_normalizer(self, data: np.ndarray) -> None:
+        skipped = list(self.skip_normalization)
         mean, std = data.mean(axis=0), data.std(axis=0) + 1e-5
-        mean[list(self.skip_normalization)], std[list(self.skip_normalization)] = 0.0, 1.0
+        if self.normalization == "whiten":
+            # the principal axes of the normalized dimensions (in float64: the covariance of near-constant ones is
+            # tiny); std holds the spread along each axis, with the same floor as per dimension
+            kept = np.setdiff1d(np.arange(self.dim), skipped)
+            eigenvalues, eigenvectors = np.linalg.eigh(np.cov(data[:, kept].astype(np.float64), rowvar=False, bias=True))
+            rotation = np.eye(self.dim)
+            rotation[np.ix_(kept, kept)] = eigenvectors
+            std[kept] = np.sqrt(np.clip(eigenvalues, 0.0, None)) + 1e-5
+            self.rotation.copy_(th.as_tensor(rotation, dtype=th.float32))
+        mean[skipped], std[skipped] = 0.0, 1.0
         self.mean.copy_(th.as_tensor(mean, dtype=th.float32))
         self.std.copy_(th.as_tensor(std, dtype=th.float32))
+
+    def normalize(self, vectors: th.Tensor) -> th.Tensor:
+        """Data units -> the model's units: (x − μ) / σ per dimension, or ((x − μ) R) / √λ when whitening."""
+        centered = vectors - self.mean
+        return (centered @ self.rotation if self.normalization == "whiten" else centered) / self.std
+
+    def unnormalize(self, normalized: th.Tensor) -> th.Tensor:
+        """The model's units -> data units (the inverse of ``normalize``: R is orthonormal)."""
+        scaled = normalized * self.std
+        return (scaled @ self.rotation.T if self.normalization == "whiten" else scaled) + self.mean
 
     # training ------------------------------------------------------------------------------------------------
     def fit(self, data: np.ndarray, steps: int | None = None) -> FitInfo:
@@ -204,7 +241,7 @@ class ElucidatedDiffusion(nn.Module):
         steps = steps or self.train_steps
         start = time.perf_counter()
         self._fit_normalizer(data)
-        normalized = (th.as_tensor(data, dtype=th.float32, device=self.device_) - self.mean) / self.std
+        normalized = self.normalize(th.as_tensor(data, dtype=th.float32, device=self.device_))
         net = copy.deepcopy(self.ema) if self.warm_start else self._new_denoiser()
         net.train()
         optimizer = th.optim.AdamW(net.parameters(), lr=self.learning_rate, betas=(0.9, 0.99), weight_decay=0.0)
@@ -275,8 +312,10 @@ class ElucidatedDiffusion(nn.Module):
         One new vector per anchor whose ``known`` dimensions are the anchor's and whose other dimensions are generated
         given them (inpainting by replacement, Lugmayr et al., 2022): after every sampler step the known dimensions
         are reset to the anchor noised to the current level, so the rest is denoised consistently with them, e.g.
-        s' given a real (s, a).
+        s' given a real (s, a). Needs per-dimension normalization (whitening mixes known and generated dimensions).
         """
+        if self.normalization != "per_dimension":
+            raise ValueError(f"sample_given needs normalization='per_dimension', got {self.normalization!r}")
         normalized = self._normalize(anchors)
         mask = th.zeros(self.dim, dtype=th.bool, device=self.device_)
         mask[th.as_tensor(np.asarray(known), device=self.device_)] = True
@@ -291,7 +330,7 @@ class ElucidatedDiffusion(nn.Module):
         vectors = np.asarray(vectors, dtype=np.float32)
         if vectors.ndim != 2 or vectors.shape[1] != self.dim:
             raise ValueError(f"anchors must have shape (N, {self.dim}), got {vectors.shape}")
-        return (th.as_tensor(vectors, dtype=th.float32, device=self.device_) - self.mean) / self.std
+        return self.normalize(th.as_tensor(vectors, dtype=th.float32, device=self.device_))
 
     def _noise(self, shape: tuple[int, ...]) -> th.Tensor:
         return th.randn(shape, generator=self.generator, device=self.device_)
@@ -299,7 +338,7 @@ class ElucidatedDiffusion(nn.Module):
     def _sample_chunked(self, n: int, sample_chunk) -> np.ndarray:
         self.ema.eval()
         chunks = [sample_chunk(start, min(self.sample_batch_size, n - start)) for start in range(0, n, self.sample_batch_size)]
-        samples = th.cat(chunks) * self.std + self.mean
+        samples = self.unnormalize(th.cat(chunks))
         return samples.cpu().numpy()
 
     def _heun(

@@ -44,6 +44,7 @@ class DynamicsEnsemble(nn.Module):
     input_std: th.Tensor
     delta_mean: th.Tensor
     delta_std: th.Tensor
+    changing: th.Tensor
 
     def __init__(
         self,
@@ -95,6 +96,7 @@ class DynamicsEnsemble(nn.Module):
             ("delta_std", obs_dim),
         ):
             self.register_buffer(name, th.zeros(size) if "mean" in name else th.ones(size))
+        self.register_buffer("changing", th.ones(obs_dim, dtype=th.bool))
         self.optimizer = th.optim.Adam(self.parameters(), lr=learning_rate)
         self.to(self.device_)
 
@@ -125,6 +127,8 @@ class DynamicsEnsemble(nn.Module):
             for name, values in (("input", inputs), ("delta", deltas)):
                 getattr(self, f"{name}_mean").copy_(th.as_tensor(values.mean(axis=0)))
                 getattr(self, f"{name}_std").copy_(th.as_tensor(values.std(axis=0) + 1e-6))
+            changing = varying_dimensions(deltas)
+            self.changing.copy_(th.as_tensor(changing if changing.any() else np.ones_like(changing)))
         x, y = self._inputs(obs[train], actions[train]), self._targets(obs[train], next_obs[train])
         for _ in range(self.train_steps):
             batch = th.as_tensor(self.rng.integers(0, len(train), size=(self.n_members, self.batch_size)), device=self.device_)
@@ -140,9 +144,10 @@ class DynamicsEnsemble(nn.Module):
         return self(x.unsqueeze(0).expand(self.n_members, -1, -1))
 
     def errors(self, obs: np.ndarray, actions: np.ndarray, next_obs: np.ndarray) -> np.ndarray:
-        """Per transition: RMS over dimensions of (ensemble-mean ŝ' − s') / std(s' − s)."""
+        """Per transition: RMS over the changing dimensions of (ensemble-mean ŝ' − s') / std(s' − s)."""
         predicted = self._predictions(obs, actions).mean(dim=0)
-        return ((predicted - self._targets(obs, next_obs)) ** 2).mean(dim=-1).sqrt().cpu().numpy()
+        squared = (predicted - self._targets(obs, next_obs)) ** 2
+        return squared[:, self.changing].mean(dim=-1).sqrt().cpu().numpy()
 
 
 @dataclass
@@ -168,6 +173,15 @@ class Fidelity:
     std_gap: float
 
 
+def varying_dimensions(values: np.ndarray) -> np.ndarray:
+    """
+    The columns of ``values`` that vary: std (in float64) above 1e-6 of their scale. A constant float32 column can
+    show a std of ~1e-5 from rounding alone, which must not count as variation.
+    """
+    values = np.asarray(values, dtype=np.float64)
+    return values.std(axis=0) > 1e-6 * (1.0 + np.abs(values).mean(axis=0))
+
+
 def split_transitions(vectors: np.ndarray, obs_dim: int, action_dim: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(s, a, s') of transition vectors [s, a, s', ...] (any trailing column, e.g. a terminal flag, is left out)."""
     return (
@@ -178,8 +192,10 @@ def split_transitions(vectors: np.ndarray, obs_dim: int, action_dim: int) -> tup
 
 
 def marginal_gaps(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float]:
-    """Mean over dimensions of |mean_syn − mean_real| / std_real and of |std_syn / std_real − 1|."""
-    real_std = real.std(axis=0) + 1e-8
+    """Mean over the dimensions that vary in ``real`` of |mean_syn − mean_real| / std_real and of |std_syn / std_real − 1|."""
+    varying = varying_dimensions(real)
+    real, synthetic = real[:, varying].astype(np.float64), synthetic[:, varying].astype(np.float64)
+    real_std = real.std(axis=0)
     mean_gap = np.abs(synthetic.mean(axis=0) - real.mean(axis=0)) / real_std
     std_gap = np.abs(synthetic.std(axis=0) / real_std - 1.0)
     return float(mean_gap.mean()), float(std_gap.mean())
@@ -188,8 +204,14 @@ def marginal_gaps(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float
 def novelty_ratio(
     reference: np.ndarray, real_queries: np.ndarray, synthetic: np.ndarray, rng: np.random.Generator, n_queries: int = 1000
 ) -> float:
-    """Median nearest-neighbour distance to ``reference`` of synthetic vectors over that of real held-out vectors."""
-    mean, std = reference.mean(axis=0), reference.std(axis=0) + 1e-6
+    """
+    Median nearest-neighbour distance to ``reference`` of synthetic vectors over that of real held-out vectors, in
+    z-scored units over the dimensions that vary in ``reference`` (a constant one, z-scored, would turn noise of
+    1e-6 into a distance of a whole std).
+    """
+    varying = varying_dimensions(reference)
+    reference, real_queries, synthetic = reference[:, varying], real_queries[:, varying], synthetic[:, varying]
+    mean, std = reference.mean(axis=0), reference.astype(np.float64).std(axis=0).astype(np.float32)
     points = th.as_tensor((reference - mean) / std, dtype=th.float32)
 
     def median_distance(queries: np.ndarray) -> float:

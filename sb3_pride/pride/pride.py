@@ -7,7 +7,7 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
 from sb3_pride.pride.callbacks import DiffusionCallback
-from sb3_pride.common.diffusion import ElucidatedDiffusion
+from sb3_pride.common.diffusion import NORMALIZATIONS, ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity, split_transitions
 from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
@@ -62,6 +62,9 @@ class PRIDE(PEBBLE):
     :param diffusion_sample_steps: Heun sampler steps
     :param diffusion_warm_start: start each retrain from the previous model (SynthER starts from scratch; a warm
         start reaches the same fidelity in fewer steps, which is what makes PRIDE affordable on a CPU)
+    :param diffusion_normalization: "per_dimension" (z-scores, as SynthER) or "whiten" (PCA whitening, for
+        observations whose dimensions are strongly correlated, e.g. Meta-World's, which hold the previous frame: a
+        velocity is then the small difference of two coordinates, and per-dimension noise wipes it out)
     :param diffusion_kwargs: any other ``ElucidatedDiffusion`` argument (``dim_t``, ``batch_size``,
         ``learning_rate``, ``sample_batch_size``, ``ema_decay``, ...)
     :param model_state_change: the diffusion models [s, a, s' − s] instead of the paper's [s, a, s'], so that its
@@ -106,6 +109,7 @@ class PRIDE(PEBBLE):
         diffusion_train_steps: int = 2000,
         diffusion_sample_steps: int = 8,
         diffusion_warm_start: bool = True,
+        diffusion_normalization: str = "per_dimension",
         diffusion_kwargs: dict[str, Any] | None = None,
         model_state_change: bool = True,
         generation: str = "near_real",
@@ -135,6 +139,8 @@ class PRIDE(PEBBLE):
         if diffusion_window is not None:
             check_positive_ints(diffusion_window=diffusion_window)
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
+        if diffusion_normalization not in NORMALIZATIONS:
+            raise ValueError(f"diffusion_normalization must be one of {NORMALIZATIONS}, got {diffusion_normalization!r}")
         if generation not in GENERATIONS:
             raise ValueError(f"generation must be one of {GENERATIONS}, got {generation!r}")
         sigma_min = (diffusion_kwargs or {}).get("sigma_min", 0.002)
@@ -153,7 +159,7 @@ class PRIDE(PEBBLE):
                 n_blocks=diffusion_blocks,
                 train_steps=diffusion_train_steps,
                 sample_steps=diffusion_sample_steps,
-                **{"device": "cpu", **(diffusion_kwargs or {})},
+                **{"device": "cpu", "normalization": diffusion_normalization, **(diffusion_kwargs or {})},
             )
         except (TypeError, ValueError) as error:
             raise ValueError(f"diffusion_kwargs must be valid ElucidatedDiffusion arguments: {error}") from None
@@ -181,6 +187,7 @@ class PRIDE(PEBBLE):
         self.diffusion_train_steps = diffusion_train_steps
         self.diffusion_sample_steps = diffusion_sample_steps
         self.diffusion_warm_start = diffusion_warm_start
+        self.diffusion_normalization = diffusion_normalization
         self.diffusion_kwargs = dict(diffusion_kwargs or {})
         self.model_state_change = model_state_change
         self.generation = generation
@@ -253,6 +260,7 @@ class PRIDE(PEBBLE):
             train_steps=self.diffusion_train_steps,
             sample_steps=self.diffusion_sample_steps,
             warm_start=self.diffusion_warm_start,
+            normalization=self.diffusion_normalization,
             skip_normalization=(dim - 1,) if self.model_terminals else (),
             seed=self.seed,
             device=self.device,
