@@ -54,14 +54,18 @@ def collect(task: str, n: int, seed: int) -> np.ndarray:
 
 
 def table(paths: list[Path]) -> str:
-    """One markdown row per configuration: what it models, dynamics error ratio, novelty, seconds."""
-    lines = ["| generator | models | fit s | s per 10k samples | dynamics error | ratio to real | novelty |",
-             "|---|---|---|---|---|---|---|"]  # fmt: skip
+    """One markdown row per configuration: task, what it models, normalization, dynamics error ratio, novelty, seconds."""
+    lines = ["| task | generator | models | normalization | fit s | s per 10k samples | dynamics error | ratio to real | novelty |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for path in paths:
-        for row in json.loads(path.read_text())["rows"]:
+        results = json.loads(path.read_text())
+        task = results.get("task", "walker-walk")  # files written before --task: walker-walk
+        for row in results["rows"]:
             models = {"next_state": "[s, a, s']", "delta": "[s, a, s' − s]"}.get(row.get("representation", ""), "—")
-            lines.append(f"| {row['name']} | {models} | {row['fit_seconds']:.1f} | {row['seconds_per_10k_samples']:.2f} | "
-                         f"{row['dynamics_error']:.2f} | {row['dynamics_error_ratio']:.2f} | {row['novelty_ratio']:.2f} |")  # fmt: skip
+            normalization = row.get("normalization", "per_dimension" if "representation" in row else "—")
+            lines.append(f"| {task} | {row['name']} | {models} | {normalization} | {row['fit_seconds']:.1f} | "
+                         f"{row['seconds_per_10k_samples']:.2f} | {row['dynamics_error']:.2f} | "
+                         f"{row['dynamics_error_ratio']:.2f} | {row['novelty_ratio']:.2f} |")  # fmt: skip
     return "\n".join(lines)
 
 
