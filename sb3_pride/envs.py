@@ -13,6 +13,7 @@ Both record the simulator state of every step in ``info["render_state"]`` once a
 dm_control and Meta-World are imported only when an environment is made.
 """
 
+import functools
 from typing import Any
 
 import gymnasium as gym
@@ -81,13 +82,25 @@ class EpisodeSuccess(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
 
+@functools.lru_cache(maxsize=32)
+def metaworld_tasks(env_name: str, seed: int) -> list:
+    """MT1's 50 task variations of ``env_name`` drawn from ``seed`` (numpy's global RNG is left as it was)."""
+    import metaworld
+
+    return metaworld.MT1(env_name, seed=seed).train_tasks
+
+
 class SeededTasks(gym.Wrapper):
     """
     Makes a Meta-World MT1 env repeatable from ``reset(seed=...)``, as SB3's ``make_vec_env(..., seed=...)`` and
     every gymnasium env expect. MT1 draws its 50 task variations (object and goal positions) from numpy's global
-    RNG when the env is built, and picks one at each reset *before* the reset's seed takes effect, so two runs with
-    the same seed saw different tasks. On a seeded reset this wrapper draws the variations from that seed (numpy's
-    global RNG is left as it was) and seeds the picker first.
+    RNG when the env is built, picks one at each reset, and its env ignores the reset's seed (Meta-World seeds through
+    ``seed()``), so two runs with the same seed saw different tasks. On a seeded reset this wrapper takes the
+    variations drawn from that seed and seeds the env (its task picker, action and observation spaces) through
+    Meta-World's ``seed()``; unseeded resets pass through unchanged.
+
+    :param env: a Meta-World env made by ``gym.make("Meta-World/MT1", ...)``
+    :param env_name: its task, e.g. ``"button-press-v3"``
     """
 
     def __init__(self, env: gym.Env, env_name: str):
@@ -96,14 +109,12 @@ class SeededTasks(gym.Wrapper):
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict]:
         if seed is not None:
-            import metaworld
-
             picker = self.env
             while not hasattr(picker, "tasks"):  # Meta-World's task-select wrapper, wherever it sits
                 assert isinstance(picker, gym.Wrapper), "no Meta-World task-select wrapper found"
                 picker = picker.env
-            picker.tasks = metaworld.MT1(self.env_name, seed=seed).train_tasks  # type: ignore[attr-defined]
-            self.unwrapped.np_random = gym.utils.seeding.np_random(seed)[0]
+            picker.tasks = metaworld_tasks(self.env_name, seed)  # type: ignore[attr-defined]
+            self.unwrapped.seed(seed)  # type: ignore[attr-defined]
         return self.env.reset(seed=seed, options=options)
 
 

@@ -177,9 +177,11 @@ def test_metaworld_runs_repeat_from_their_seed():
     def first_steps(seed):
         env = make_vec_env("sb3_pride/button-press-v3", n_envs=2, seed=seed)
         env.action_space.seed(seed)
-        state = np.random.get_state()[1].copy()
+        key, position = np.random.get_state()[1].copy(), np.random.get_state()[2]
         rows = [env.reset()]
-        np.testing.assert_array_equal(np.random.get_state()[1], state)  # the seeded reset leaves numpy's global RNG
+        # the seeded reset leaves numpy's global RNG as it was
+        np.testing.assert_array_equal(np.random.get_state()[1], key)
+        assert np.random.get_state()[2] == position
         for _ in range(5):
             rows.append(env.step(np.stack([env.action_space.sample() for _ in range(2)]))[0])
         return np.stack(rows)

@@ -90,9 +90,9 @@ def test_whitening_keeps_the_small_difference_of_two_correlated_coordinates():
         model = ElucidatedDiffusion(3, width=32, n_blocks=1, dim_t=16, train_steps=300, sample_steps=6,
                                     skip_normalization=(2,), normalization=normalization, seed=0)  # fmt: skip
         model.fit(data)
-        normalized = model.normalize(th.as_tensor(data, dtype=th.float32))
-        np.testing.assert_allclose(model.unnormalize(normalized).numpy(), data, atol=1e-4)  # an exact inverse
-        np.testing.assert_array_equal(normalized[:, 2].numpy(), flag)  # the skipped dimension is left as it is
+        normalized = model.normalize(th.as_tensor(data, dtype=th.float32, device=model.device_))
+        np.testing.assert_allclose(model.unnormalize(normalized).cpu().numpy(), data, atol=1e-4)  # an exact inverse
+        np.testing.assert_array_equal(normalized[:, 2].cpu().numpy(), flag)  # the skipped dimension is left as it is
         near = model.sample_near(data[:1000], start_sigma=0.25)
         spreads[normalization] = (near[:, 0] - near[:, 1]).std() / velocity.std()
     assert spreads["whiten"] < 2.0 < 10.0 < spreads["per_dimension"], spreads
@@ -100,3 +100,26 @@ def test_whitening_keeps_the_small_difference_of_two_correlated_coordinates():
         model.sample_given(data[:10], known=[0])
     with pytest.raises(ValueError, match="normalization must be"):
         ElucidatedDiffusion(3, normalization="pca")
+    with pytest.raises(ValueError, match="skip_normalization"):
+        ElucidatedDiffusion(3, skip_normalization=(3,))
+
+
+def test_whitening_is_zca_and_survives_refits():
+    # ZCA's map is the symmetric Σ^(-1/2), whatever sign or order eigh gives the eigenvectors, so refits on
+    # overlapping data give nearly the same map and a warm-started model keeps its meaning (PCA's rotation can flip
+    # axes between refits)
+    rng = np.random.default_rng(0)
+    data = rng.normal(size=(4000, 4)) @ rng.normal(size=(4, 4))
+    data[:, 3] = 0.5  # a constant dimension, and a skipped last one given as -1
+    data = np.concatenate([data, (rng.random((4000, 1)) < 0.5)], axis=1)
+    model = ElucidatedDiffusion(5, width=16, n_blocks=1, train_steps=1, normalization="whiten",
+                                skip_normalization=(-1,), seed=0, device="cpu")  # fmt: skip
+    for part in (data[:3000], data[1000:]):
+        model.fit(part)
+        whitening = (model.normalize(th.eye(5) + model.mean) - model.normalize(model.mean[None])).numpy()[:3, :3]
+        eigenvalues, eigenvectors = np.linalg.eigh(np.cov(part[:, :3], rowvar=False, bias=True))
+        inverse_root = eigenvectors @ np.diag(eigenvalues**-0.5) @ eigenvectors.T
+        np.testing.assert_allclose(whitening, inverse_root, rtol=1e-3, atol=1e-4 * np.abs(inverse_root).max())
+        whitened = model.normalize(th.as_tensor(part, dtype=th.float32)).numpy()
+        np.testing.assert_allclose(np.cov(whitened[:, :3], rowvar=False, bias=True), np.eye(3), atol=1e-3)
+        np.testing.assert_array_equal(whitened[:, 4], part[:, 4])

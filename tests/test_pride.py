@@ -126,7 +126,7 @@ def test_short_run_on_metaworld_with_a_whitened_diffusion(tiny_kwargs, tmp_path)
     assert model.diffusion_retrains == 2 and model.replay_buffer.synthetic.size() == 2000
     assert len(model.ep_success_buffer) == 1
     rotation = model.diffusion.rotation
-    assert th.allclose(rotation @ rotation.T, th.eye(len(rotation)), atol=1e-4)  # orthonormal principal axes
+    assert th.allclose(rotation @ rotation.T, th.eye(len(rotation), device=rotation.device), atol=1e-4)  # orthonormal
     # the observation's previous frame: s' holds s's current frame exactly, and whitened samples keep that identity
     # (a zero-variance direction); per-dimension normalization breaks it (here by up to 0.37)
     synthetic = model.replay_buffer.synthetic
@@ -141,6 +141,8 @@ def test_short_run_on_metaworld_with_a_whitened_diffusion(tiny_kwargs, tmp_path)
 def test_bad_input_names_the_parameter():
     with pytest.raises(ValueError, match="synthetic_ratio"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.5)
+    with pytest.raises(ValueError, match=r"set diffusion_normalization, not diffusion_kwargs\['normalization'\]"):
+        PRIDE("MlpPolicy", "Pendulum-v1", diffusion_kwargs=dict(normalization="whiten"))
     for name in ("diffusion_interval", "synthetic_samples", "diffusion_train_steps"):
         with pytest.raises(ValueError, match=name):
             PRIDE("MlpPolicy", "Pendulum-v1", **{name: 0})

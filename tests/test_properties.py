@@ -24,9 +24,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sb3_pride import PEBBLE, PRIDE, TEACHER_PRESETS
+from sb3_pride.common.diffusion import NORMALIZATIONS
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs
-from sb3_pride.common.diffusion import NORMALIZATIONS
 from sb3_pride.pride.pride import GENERATIONS, SYNTHETIC_FILTERS
 
 #: cheap models: Pendulum (200-step episodes), tiny networks, small buffers

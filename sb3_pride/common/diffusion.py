@@ -76,11 +76,13 @@ NORMALIZATIONS = ("per_dimension", "whiten")
 class ElucidatedDiffusion(nn.Module):
     """
     An EDM diffusion model over flat vectors, normalized (statistics refit at every ``fit``) either per dimension
-    (z-scores, SynthER's) or by whitening (PCA: z = ((x − μ) R) / √λ, with R the eigenvectors and λ the eigenvalues of
-    the data's covariance). Whitening matters where dimensions are strongly correlated: Meta-World's observation holds
-    the previous frame beside the current one, so a velocity is the small difference of two z-scored coordinates, and
-    per-dimension noise of σ = 0.25 wipes it out; after whitening that difference is a unit-variance direction of
-    its own, and the noise added along it is in proportion to its spread.
+    (z-scores, SynthER's) or by ZCA whitening: z = (x − μ) R Λ^(−1/2) Rᵀ, with R the eigenvectors and Λ the
+    eigenvalues of the data's covariance. Whitening matters where dimensions are strongly correlated: Meta-World's
+    observation holds the previous frame beside the current one, so a velocity is the small difference of two
+    coordinates, and per-dimension noise of σ = 0.25 wipes it out; whitened, that difference is a unit-variance
+    direction of its own and the noise along it is in proportion to its spread. ZCA (rather than PCA's
+    z = (x − μ) R Λ^(−1/2)) keeps the model's coordinates close to the data's and does not depend on the sign or order
+    eigh gives the eigenvectors, so a warm-started model keeps its meaning across refits.
 
     Denoiser D(x; σ) = c_skip(σ)·x + c_out(σ)·F_θ(c_in(σ)·x, ln(σ)/4), with c_skip = σ_d²/(σ² + σ_d²),
     c_out = σσ_d/√(σ² + σ_d²), c_in = 1/√(σ² + σ_d²). Training minimizes λ(σ)·‖D(x + σn; σ) − x‖²,
@@ -104,7 +106,7 @@ class ElucidatedDiffusion(nn.Module):
     :param ema_decay: EMA decay (updated every ``ema_every`` steps, with a warm-up)
     :param warm_start: start each ``fit`` from the current EMA weights instead of a new initialization
     :param skip_normalization: dimensions left unnormalized (e.g. a 0/1 terminal flag)
-    :param normalization: ``"per_dimension"`` (z-scores) or ``"whiten"`` (PCA whitening of the other dimensions)
+    :param normalization: ``"per_dimension"`` (z-scores) or ``"whiten"`` (ZCA whitening of the other dimensions)
     :param seed: seed of the model's own random generators (the global torch/numpy RNGs are never touched)
     :param device: torch device
     """
@@ -156,7 +158,9 @@ class ElucidatedDiffusion(nn.Module):
         self.ema_decay = ema_decay
         self.ema_every = ema_every
         self.warm_start = warm_start
-        self.skip_normalization = tuple(skip_normalization)
+        if any(not -dim <= int(i) < dim for i in skip_normalization):
+            raise ValueError(f"skip_normalization must hold dimensions in [-{dim}, {dim}), got {tuple(skip_normalization)}")
+        self.skip_normalization = tuple(sorted({int(i) % dim for i in skip_normalization}))  # -1 is the last one
         if normalization not in NORMALIZATIONS:
             raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
         self.normalization = normalization
@@ -205,10 +209,14 @@ class ElucidatedDiffusion(nn.Module):
         skipped = list(self.skip_normalization)
         mean, std = data.mean(axis=0), data.std(axis=0) + 1e-5
         if self.normalization == "whiten":
-            # the principal axes of the normalized dimensions (in float64: the covariance of near-constant ones is
-            # tiny); std holds the spread along each axis, with the same floor as per dimension
+            # the principal axes of the normalized dimensions, from a float64 covariance accumulated in chunks (that of
+            # near-constant ones is tiny); std holds the spread along each axis, with the same floor as per dimension
             kept = np.setdiff1d(np.arange(self.dim), skipped)
-            eigenvalues, eigenvectors = np.linalg.eigh(np.cov(data[:, kept].astype(np.float64), rowvar=False, bias=True))
+            covariance = np.zeros((len(kept), len(kept)))
+            for start in range(0, len(data), 65_536):
+                chunk = data[start : start + 65_536, kept].astype(np.float64) - mean[kept]
+                covariance += chunk.T @ chunk
+            eigenvalues, eigenvectors = np.linalg.eigh(covariance / len(data))
             rotation = np.eye(self.dim)
             rotation[np.ix_(kept, kept)] = eigenvectors
             std[kept] = np.sqrt(np.clip(eigenvalues, 0.0, None)) + 1e-5
@@ -218,14 +226,17 @@ class ElucidatedDiffusion(nn.Module):
         self.std.copy_(th.as_tensor(std, dtype=th.float32))
 
     def normalize(self, vectors: th.Tensor) -> th.Tensor:
-        """Data units -> the model's units: (x − μ) / σ per dimension, or ((x − μ) R) / √λ when whitening."""
+        """Data units -> the model's units: (x − μ) / σ per dimension, or (x − μ) R Λ^(−1/2) Rᵀ when whitening."""
         centered = vectors - self.mean
-        return (centered @ self.rotation if self.normalization == "whiten" else centered) / self.std
+        if self.normalization == "whiten":
+            return ((centered @ self.rotation) / self.std) @ self.rotation.T
+        return centered / self.std
 
     def unnormalize(self, normalized: th.Tensor) -> th.Tensor:
         """The model's units -> data units (the inverse of ``normalize``: R is orthonormal)."""
-        scaled = normalized * self.std
-        return (scaled @ self.rotation.T if self.normalization == "whiten" else scaled) + self.mean
+        if self.normalization == "whiten":
+            return ((normalized @ self.rotation) * self.std) @ self.rotation.T + self.mean
+        return normalized * self.std + self.mean
 
     # training ------------------------------------------------------------------------------------------------
     def fit(self, data: np.ndarray, steps: int | None = None) -> FitInfo:
@@ -289,7 +300,7 @@ class ElucidatedDiffusion(nn.Module):
     @th.no_grad()
     def sample_near(self, anchors: np.ndarray, start_sigma: float) -> np.ndarray:
         """
-        One new vector per anchor, generated *near* it (SDEdit, Meng et al., 2022): the z-scored anchor is noised to
+        One new vector per anchor, generated *near* it (SDEdit, Meng et al., 2022): the normalized anchor is noised to
         ``start_sigma`` and denoised from there on the Karras schedule that starts at ``start_sigma`` (with the
         sampler's churn, the first step briefly raises the level to ≈ (1 + min(S_churn/N, √2 − 1))·``start_sigma``). Small
         ``start_sigma`` stays close to real data; ``start_sigma = σ_max`` forgets the anchor.

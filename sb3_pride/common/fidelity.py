@@ -159,10 +159,10 @@ class Fidelity:
     :param real_dynamics_error: the same for real held-out transitions
     :param dynamics_error_ratio: their ratio; 1.0 = synthetic next states as consistent as real ones
     :param novelty_ratio: median distance of a synthetic transition to its nearest real training transition, over
-        the same for real held-out transitions (z-scored transition space): ~0 = copies of the buffer,
-        ~1 = as new as a fresh real transition, >> 1 = off the data
-    :param mean_gap: mean over dimensions of |mean_syn − mean_real| / std_real (marginal; cannot see dynamics)
-    :param std_gap: mean over dimensions of |std_syn / std_real − 1| (marginal; cannot see dynamics)
+        the same for real held-out transitions (z-scored transition space, varying dimensions): ~0 = copies of the
+        buffer, ~1 = as new as a fresh real transition, >> 1 = off the data
+    :param mean_gap: mean over varying dimensions of |mean_syn − mean_real| / std_real (marginal; cannot see dynamics)
+    :param std_gap: mean over varying dimensions of |std_syn / std_real − 1| (marginal; cannot see dynamics)
     """
 
     dynamics_error: float
@@ -192,8 +192,13 @@ def split_transitions(vectors: np.ndarray, obs_dim: int, action_dim: int) -> tup
 
 
 def marginal_gaps(real: np.ndarray, synthetic: np.ndarray) -> tuple[float, float]:
-    """Mean over the dimensions that vary in ``real`` of |mean_syn − mean_real| / std_real and of |std_syn / std_real − 1|."""
+    """
+    Mean over the dimensions that vary in ``real`` of |mean_syn − mean_real| / std_real and of |std_syn / std_real − 1|
+    (NaN if none varies).
+    """
     varying = varying_dimensions(real)
+    if not varying.any():
+        return float("nan"), float("nan")
     real, synthetic = real[:, varying].astype(np.float64), synthetic[:, varying].astype(np.float64)
     real_std = real.std(axis=0)
     mean_gap = np.abs(synthetic.mean(axis=0) - real.mean(axis=0)) / real_std
@@ -207,9 +212,11 @@ def novelty_ratio(
     """
     Median nearest-neighbour distance to ``reference`` of synthetic vectors over that of real held-out vectors, in
     z-scored units over the dimensions that vary in ``reference`` (a constant one, z-scored, would turn noise of
-    1e-6 into a distance of a whole std).
+    1e-6 into a distance of a whole std); NaN if none varies.
     """
     varying = varying_dimensions(reference)
+    if not varying.any():
+        return float("nan")
     reference, real_queries, synthetic = reference[:, varying], real_queries[:, varying], synthetic[:, varying]
     mean, std = reference.mean(axis=0), reference.astype(np.float64).std(axis=0).astype(np.float32)
     points = th.as_tensor((reference - mean) / std, dtype=th.float32)

@@ -71,8 +71,8 @@ class PRIDE(PEBBLE):
         loss weighs next-state errors in units of a typical step rather than of the state's whole range
     :param generation: "unconditional" (the paper, SynthER: from pure noise) or "near_real": each sample starts
         from a random real transition noised to ``anchor_noise`` and denoised from there (SDEdit)
-    :param anchor_noise: σ (z-scored units) to which real transitions are noised for ``generation="near_real"``;
-        small stays close to the data, large forgets it
+    :param anchor_noise: σ (the diffusion's normalized units) to which real transitions are noised for
+        ``generation="near_real"``; small stays close to the data, large forgets it
     :param synthetic_start: no synthetic data is generated or mixed before this env step (besides waiting for the
         first reward model, which always holds)
     :param synthetic_ramp: env steps over which u grows linearly from 0 to ``synthetic_ratio`` after the first
@@ -141,6 +141,8 @@ class PRIDE(PEBBLE):
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
         if diffusion_normalization not in NORMALIZATIONS:
             raise ValueError(f"diffusion_normalization must be one of {NORMALIZATIONS}, got {diffusion_normalization!r}")
+        if "normalization" in (diffusion_kwargs or {}):
+            raise ValueError("set diffusion_normalization, not diffusion_kwargs['normalization']")
         if generation not in GENERATIONS:
             raise ValueError(f"generation must be one of {GENERATIONS}, got {generation!r}")
         sigma_min = (diffusion_kwargs or {}).get("sigma_min", 0.002)
