@@ -62,7 +62,7 @@ class PRIDE(PEBBLE):
     :param diffusion_sample_steps: Heun sampler steps
     :param diffusion_warm_start: start each retrain from the previous model (SynthER starts from scratch; a warm
         start reaches the same fidelity in fewer steps, which is what makes PRIDE affordable on a CPU)
-    :param diffusion_normalization: "per_dimension" (z-scores, as SynthER) or "whiten" (PCA whitening, for
+    :param diffusion_normalization: "per_dimension" (z-scores, as SynthER) or "whiten" (ZCA whitening, for
         observations whose dimensions are strongly correlated, e.g. Meta-World's, which hold the previous frame: a
         velocity is then the small difference of two coordinates, and per-dimension noise wipes it out)
     :param diffusion_kwargs: any other ``ElucidatedDiffusion`` argument (``dim_t``, ``batch_size``,
