@@ -15,7 +15,7 @@ import torch as th
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
-from sb3_pride.common.utils import check_positive_ints
+from sb3_pride.common.utils import check_choice, check_positive_ints
 
 
 class ResidualBlock(nn.Module):
@@ -161,8 +161,7 @@ class ElucidatedDiffusion(nn.Module):
         if any(not -dim <= int(i) < dim for i in skip_normalization):
             raise ValueError(f"skip_normalization must hold dimensions in [-{dim}, {dim}), got {tuple(skip_normalization)}")
         self.skip_normalization = tuple(sorted({int(i) % dim for i in skip_normalization}))  # -1 is the last one
-        if normalization not in NORMALIZATIONS:
-            raise ValueError(f"normalization must be one of {NORMALIZATIONS}, got {normalization!r}")
+        check_choice("normalization", normalization, NORMALIZATIONS)
         self.normalization = normalization
         self.sigma_min, self.sigma_max, self.sigma_data, self.rho = sigma_min, sigma_max, sigma_data, rho
         self.p_mean, self.p_std = p_mean, p_std

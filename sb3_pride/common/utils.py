@@ -20,6 +20,12 @@ def check_non_negative_ints(**params: Any) -> None:
             raise ValueError(f"{name} must be a non-negative integer, got {value!r}")
 
 
+def check_choice(name: str, value: Any, choices: tuple[str, ...]) -> None:
+    """Raise ``ValueError`` naming ``name`` unless ``value`` is one of ``choices``."""
+    if value not in choices:
+        raise ValueError(f"{name} must be one of {choices}, got {value!r}")
+
+
 def check_real(name: str, value: Any, accepted: Callable[[float], bool], expected: str) -> None:
     """
     Raise ``ValueError`` naming ``name`` unless ``value`` is a real number (not a bool, not NaN) that ``accepted``

@@ -23,7 +23,7 @@ from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_wri
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import Teacher, make_teacher
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
+from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 #: ``teacher="web"``: a person labels in a browser (``sb3_pride.human.WebTeacher`` on port 8000)
@@ -151,8 +151,7 @@ class PEBBLE(SAC):
             reward_epochs=reward_epochs,
         )
         check_non_negative_ints(unsupervised_steps=unsupervised_steps, critic_reset_updates=critic_reset_updates)
-        if query_selection not in QUERY_SELECTIONS:
-            raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {query_selection!r}")
+        check_choice("query_selection", query_selection, QUERY_SELECTIONS)
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         if n_steps != 1:
             raise ValueError(

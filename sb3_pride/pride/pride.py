@@ -10,7 +10,7 @@ from sb3_pride.pride.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import NORMALIZATIONS, ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity, split_transitions
 from sb3_pride.common.queries import chronological_rows
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
+from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 from sb3_pride.pebble.pebble import PEBBLE
 
 #: how synthetic transitions are generated (``generation``)
@@ -139,12 +139,10 @@ class PRIDE(PEBBLE):
         if diffusion_window is not None:
             check_positive_ints(diffusion_window=diffusion_window)
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
-        if diffusion_normalization not in NORMALIZATIONS:
-            raise ValueError(f"diffusion_normalization must be one of {NORMALIZATIONS}, got {diffusion_normalization!r}")
+        check_choice("diffusion_normalization", diffusion_normalization, NORMALIZATIONS)
         if "normalization" in (diffusion_kwargs or {}):
             raise ValueError("set diffusion_normalization, not diffusion_kwargs['normalization']")
-        if generation not in GENERATIONS:
-            raise ValueError(f"generation must be one of {GENERATIONS}, got {generation!r}")
+        check_choice("generation", generation, GENERATIONS)
         sigma_min = (diffusion_kwargs or {}).get("sigma_min", 0.002)
         sigma_max = (diffusion_kwargs or {}).get("sigma_max", 80.0)
         check_real(
@@ -170,8 +168,7 @@ class PRIDE(PEBBLE):
         except (TypeError, ValueError) as error:
             raise ValueError(f"dynamics_kwargs must be valid DynamicsEnsemble arguments: {error}") from None
         check_real("synthetic_keep_quantile", synthetic_keep_quantile, lambda q: 0.0 < q <= 1.0, "in (0, 1]")
-        if synthetic_filter not in SYNTHETIC_FILTERS:
-            raise ValueError(f"synthetic_filter must be one of {SYNTHETIC_FILTERS}, got {synthetic_filter!r}")
+        check_choice("synthetic_filter", synthetic_filter, SYNTHETIC_FILTERS)
         if synthetic_keep_quantile < 1.0 and synthetic_filter == "dynamics" and not fidelity_check:
             raise ValueError("synthetic_filter='dynamics' needs fidelity_check=True (the dynamics ensemble it uses)")
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
