@@ -32,12 +32,13 @@ import torch as th
 
 import sb3_pride  # noqa: F401  (registers the environments)
 from run import env_id  # benchmarks/run.py, beside this script
-from sb3_pride.common.diffusion import ElucidatedDiffusion
+from sb3_pride.common.diffusion import NORMALIZATIONS, ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions
 from sb3_pride.pride.pride import add_states_to_next_states
 
 
-def collect(task: str, n: int, seed: int) -> np.ndarray:
+def collect(task: str, n: int, seed: int) -> tuple[np.ndarray, int]:
+    """``n`` transition vectors [s, a, s'] of ``task`` under smooth random actions, and the action dimension."""
     env = gym.make(env_id(task))
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
@@ -50,7 +51,7 @@ def collect(task: str, n: int, seed: int) -> np.ndarray:
         obs = next_obs
         if terminated or truncated:
             obs, _ = env.reset()
-    return np.asarray(rows, dtype=np.float32)
+    return np.asarray(rows, dtype=np.float32), action.shape[0]
 
 
 def table(paths: list[Path]) -> str:
@@ -76,7 +77,7 @@ def main() -> None:
     )
     parser.add_argument(
         "--normalization",
-        choices=["per_dimension", "whiten"],
+        choices=NORMALIZATIONS,
         default="per_dimension",
         help="the generator's normalization (ElucidatedDiffusion's normalization)",
     )
@@ -97,8 +98,7 @@ def main() -> None:
         print(table(args.table))
         return
     th.set_num_threads(1)
-    real = collect(args.task, args.transitions, args.seed)
-    action_dim = gym.make(env_id(args.task)).action_space.shape[0]
+    real, action_dim = collect(args.task, args.transitions, args.seed)
     obs_dim = (real.shape[1] - action_dim) // 2
     dim = real.shape[1]
     start = time.perf_counter()
