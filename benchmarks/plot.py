@@ -147,7 +147,7 @@ def improvements(groups) -> dict:
     """
     P(X > Y) on the final true return, with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
     PRIDE configuration of a task against every PEBBLE configuration (each UTD) at the task's largest budget and at
-    its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u at the same budget (Fig. 5), each tagged PRIDE
+    its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u of the same variant and budget (Fig. 5), each tagged PRIDE
     variant against "faithful" PRIDE at u = 0.5 and the same budget (the ablation), each tagged
     PEBBLE variant against plain PEBBLE at its budget, and plain PEBBLE at a smaller budget against the largest. Pairs where either side has fewer than two seeds are left out.
     """
@@ -172,9 +172,10 @@ def improvements(groups) -> dict:
         # every PEBBLE at the task's largest budget (each UTD), and at this configuration's own budget
         budgets = {max((r[0]["settings"]["feedback"] for _, r in pebbles), default=None), settings["feedback"]}
         rivals = [(n, r) for n, r in pebbles if r[0]["settings"]["feedback"] in budgets]
-        if settings["ratio"] == 0.5:  # Fig. 5: u = 0.5 against the other ratios
+        if settings["ratio"] == 0.5:  # Fig. 5: u = 0.5 against the other ratios of the same variant (tag)
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
-                       and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5]  # fmt: skip
+                       and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5
+                       and r[0]["settings"].get("tag") == settings.get("tag")]  # fmt: skip
         if settings.get("tag") not in (None, "", "faithful"):  # an ablation: a variant against "faithful" PRIDE
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
                        and r[0]["settings"].get("tag") == "faithful" and r[0]["settings"]["ratio"] == 0.5
@@ -257,10 +258,14 @@ def main() -> None:
     for task in sorted({task for task, _ in groups}):
         plot_curves(groups, task, lambda s: s["algo"] != "pride" or s["ratio"] == 0.5, "true_return", "true return",
                     f"{task} (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
-        ratios = {name for (t, name), runs in groups.items() if t == task and runs[0]["settings"]["algo"] == "pride"}
-        if len(ratios) > 1:
-            plot_curves(groups, task, lambda s: s["algo"] == "pride", "true_return", "true return",
-                        f"{task}: PRIDE's synthetic ratio u", args.out / f"ratio_{task}.png")  # fmt: skip
+        ratios: dict[str, set[float]] = {}  # Fig. 5: the u of each PRIDE variant (tag) run at more than one u
+        for (t, _), runs in groups.items():
+            if t == task and runs[0]["settings"]["algo"] == "pride":
+                ratios.setdefault(runs[0]["settings"].get("tag") or "", set()).add(runs[0]["settings"]["ratio"])
+        for tag in (tag for tag, us in ratios.items() if len(us) > 1):
+            plot_curves(groups, task, lambda s, tag=tag: s["algo"] == "pride" and (s.get("tag") or "") == tag,
+                        "true_return", "true return", f"{task}: PRIDE's synthetic ratio u {tag}".rstrip(),
+                        args.out / f"ratio_{task}{'_' + tag if tag else ''}.png")  # fmt: skip
         plot_curves(
             groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png"
         )
