@@ -264,7 +264,7 @@ def main() -> None:
                 ratios.setdefault(runs[0]["settings"].get("tag") or "", set()).add(runs[0]["settings"]["ratio"])
         for tag in (tag for tag, us in ratios.items() if len(us) > 1):
             plot_curves(groups, task, lambda s, tag=tag: s["algo"] == "pride" and (s.get("tag") or "") == tag,
-                        "true_return", "true return", f"{task}: PRIDE's synthetic ratio u {tag}".rstrip(),
+                        "true_return", "true return", f"{task}: PRIDE's synthetic ratio u" + (f" ({tag})" if tag else ""),
                         args.out / f"ratio_{task}{'_' + tag if tag else ''}.png")  # fmt: skip
         plot_curves(
             groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png"
