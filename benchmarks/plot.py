@@ -30,6 +30,11 @@ import numpy as np
 COLORS = {"pride": "tab:red", "pebble": "tab:blue", "sac": "tab:gray"}
 
 
+def variant(settings: dict) -> str:
+    """The run's variant tag, "" when untagged (older runs have no "tag" key, newer ones an empty one)."""
+    return settings.get("tag") or ""
+
+
 def label(settings: dict) -> str:
     if settings["algo"] == "sac":
         return "SAC (true reward)"
@@ -175,7 +180,7 @@ def improvements(groups) -> dict:
         if settings["ratio"] == 0.5:  # Fig. 5: u = 0.5 against the other ratios of the same variant (tag)
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
                        and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5
-                       and r[0]["settings"].get("tag") == settings.get("tag")]  # fmt: skip
+                       and variant(r[0]["settings"]) == variant(settings)]  # fmt: skip
         if settings.get("tag") not in (None, "", "faithful"):  # an ablation: a variant against "faithful" PRIDE
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
                        and r[0]["settings"].get("tag") == "faithful" and r[0]["settings"]["ratio"] == 0.5
@@ -261,9 +266,9 @@ def main() -> None:
         ratios: dict[str, set[float]] = {}  # Fig. 5: the u of each PRIDE variant (tag) run at more than one u
         for (t, _), runs in groups.items():
             if t == task and runs[0]["settings"]["algo"] == "pride":
-                ratios.setdefault(runs[0]["settings"].get("tag") or "", set()).add(runs[0]["settings"]["ratio"])
+                ratios.setdefault(variant(runs[0]["settings"]), set()).add(runs[0]["settings"]["ratio"])
         for tag in (tag for tag, us in ratios.items() if len(us) > 1):
-            plot_curves(groups, task, lambda s, tag=tag: s["algo"] == "pride" and (s.get("tag") or "") == tag,
+            plot_curves(groups, task, lambda s, tag=tag: s["algo"] == "pride" and variant(s) == tag,
                         "true_return", "true return", f"{task}: PRIDE's synthetic ratio u" + (f" ({tag})" if tag else ""),
                         args.out / f"ratio_{task}{'_' + tag if tag else ''}.png")  # fmt: skip
         plot_curves(
