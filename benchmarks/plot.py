@@ -74,11 +74,19 @@ def final_returns(runs: list[dict]) -> np.ndarray:
 
 
 def bootstrap(score_dict: dict, func) -> tuple[dict, dict]:
-    """rliable's point estimates and 95% stratified-bootstrap intervals, reproducible from run to run."""
+    """
+    rliable's point estimates and 95% stratified-bootstrap intervals, each entry's drawn on its own from NumPy seed 0
+    (rliable draws from NumPy's global RNG): an entry's interval depends on its own scores only, not on which other
+    runs the folder holds.
+    """
     from rliable import library as rly
 
-    np.random.seed(0)  # rliable's stratified bootstrap draws from NumPy's global RNG
-    return rly.get_interval_estimates(score_dict, func, reps=2000)
+    point, intervals = {}, {}
+    for key, scores in score_dict.items():
+        np.random.seed(0)
+        one_point, one_interval = rly.get_interval_estimates({key: scores}, func, reps=2000)
+        point[key], intervals[key] = one_point[key], one_interval[key]
+    return point, intervals
 
 
 def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, path: Path) -> bool:
@@ -205,7 +213,7 @@ def diagnostics(runs: list[dict]) -> dict[str, float]:
     last = {"corr": "reward_model/true_reward_corr", "critic": "train/critic_loss", "actor": "train/actor_loss",
             "critic_real": "train/critic_loss_real", "q_real": "train/q_real"}  # fmt: skip
     over_retrains = {"dynamics": "diffusion/dynamics_error_ratio", "kept": "diffusion/kept_dynamics_error_ratio",
-                     "novelty": "diffusion/novelty_ratio"}  # fmt: skip
+                     "heldout": "diffusion/heldout_anchor_error_ratio", "novelty": "diffusion/novelty_ratio"}  # fmt: skip
     values: dict[str, list[float]] = defaultdict(list)
     for run in runs:
         if run["progress"] is None:
@@ -238,8 +246,8 @@ def summary(groups) -> str:
         lines.append(f"| {key} | {value['seeds'][0]} vs {value['seeds'][1]} | {value['p']:.2f} | [{low:.2f}, {high:.2f}] |")
     lines += ["", "At the end of training (means over the runs that have progress.csv):", "",
               "| task | configuration | runs | corr(r̂, r) | critic loss | critic loss, real batch | Q, real batch | −actor loss (≈ Q) "
-              "| dynamics error ratio (all retrains) | kept after filter | novelty |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+              "| dynamics error ratio (all retrains) | kept after filter | held-out anchors | novelty |",
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
 
     def cell(d: dict, key: str, digits: int, sign: float = 1.0) -> str:
         return f"{sign * d[key]:.{digits}f}" if key in d else ""
@@ -249,7 +257,7 @@ def summary(groups) -> str:
         if d["n"]:
             lines.append(f"| {task} | {name} | {d['n']} | {cell(d, 'corr', 2)} | {cell(d, 'critic', 3)} | {cell(d, 'critic_real', 3)} | "
                          f"{cell(d, 'q_real', 1)} | {cell(d, 'actor', 1, -1.0)} | {cell(d, 'dynamics', 2)} | {cell(d, 'kept', 2)} | "
-                         f"{cell(d, 'novelty', 2)} |")  # fmt: skip
+                         f"{cell(d, 'heldout', 2)} | {cell(d, 'novelty', 2)} |")  # fmt: skip
     return "\n".join(lines) + "\n"
 
 

@@ -64,6 +64,25 @@ def test_copies_of_the_buffer_are_not_novel(fitted):
     assert measure_fidelity(dynamics, real, fresh, 3, 1, refit=False).novelty_ratio > 0.5
 
 
+def test_heldout_anchors_are_judged_like_heldout_reals():
+    """
+    Near-real samples sit beside their anchors, and the ensemble fits its training rows better than held-out ones:
+    copies of every real row read a dynamics_error_ratio below 1 from that alone. Samples anchored on held-out
+    rows are compared like with like: copies read 1, corrupted next states still fail.
+    """
+    real = pendulum_transitions(150, seed=0)
+    overfit = DynamicsEnsemble(3, 1, seed=0, width=256, train_steps=3000)  # few rows, many steps: over-fitted
+    rows = np.arange(len(real))
+    copies = measure_fidelity(overfit, real, real, 3, 1, anchors=rows)
+    assert copies.dynamics_error_ratio < 0.8  # flattered by the training rows
+    assert copies.heldout_anchor_error_ratio == pytest.approx(1.0, rel=1e-4)
+    corrupted = corrupt_next_states(real, 2.0, np.random.default_rng(0))
+    assert measure_fidelity(overfit, real, corrupted, 3, 1, refit=False, anchors=rows).heldout_anchor_error_ratio > 2.5
+    assert np.isnan(measure_fidelity(overfit, real, real, 3, 1, refit=False).heldout_anchor_error_ratio)
+    with pytest.raises(ValueError, match="anchors"):
+        measure_fidelity(overfit, real, real, 3, 1, refit=False, anchors=rows[:10])
+
+
 def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_path):
     """Every retrain logs the ratio; a generator whose s' are off by two typical steps reads far above 1."""
     ratios = {}
@@ -72,18 +91,23 @@ def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_pat
         rng = np.random.default_rng(0)
 
         def generator(real, n, steps=steps, rng=rng):  # real transitions, next states corrupted by `steps`
-            return corrupt_next_states(real[rng.integers(0, len(real), size=n)], steps, rng)
+            anchors = rng.integers(0, len(real), size=n)
+            return corrupt_next_states(real[anchors], steps, rng), anchors
 
         model.generate = generator
         model.set_logger(configure(str(tmp_path / name), ["csv"]))
         model.learn(800, log_interval=1)  # retrains at 300 and 600
         progress = pd.read_csv(tmp_path / name / "progress.csv")
-        logged = progress["diffusion/dynamics_error_ratio"].dropna()
-        assert model.diffusion_retrains == 2 and len(logged) == 2
-        ratios[name] = logged.to_numpy()
+        for key in ("dynamics_error_ratio", "heldout_anchor_error_ratio"):
+            logged = progress[f"diffusion/{key}"].dropna()
+            assert model.diffusion_retrains == 2 and len(logged) == 2
+            ratios[name, key] = logged.to_numpy()
     # real transitions drawn back (copies) are at most as inconsistent as held-out real ones
-    assert np.all(ratios["faithful"] < 1.5)
-    assert np.all(ratios["corrupted"] > 2.5)
+    assert np.all(ratios["faithful", "dynamics_error_ratio"] < 1.5)
+    assert np.all(ratios["corrupted", "dynamics_error_ratio"] > 2.5)
+    # copies of held-out rows are the held-out rows: as consistent as real data by construction
+    np.testing.assert_allclose(ratios["faithful", "heldout_anchor_error_ratio"], 1.0, rtol=0.2)
+    assert np.all(ratios["corrupted", "heldout_anchor_error_ratio"] > 2.5)
 
 
 def test_dimensions_that_never_change_are_left_out():

@@ -213,6 +213,11 @@ def test_near_real_generation_of_state_changes(tiny_kwargs):
     synthetic = model.replay_buffer.synthetic
     assert model.diffusion_retrains == 1 and synthetic.size() == TINY_DIFFUSION["synthetic_samples"]
     assert np.all(np.isfinite(synthetic.next_observations[: synthetic.size()]))
+    # each sample comes with the real row it was generated near, and stays near it
+    real = model.transition_vectors()
+    vectors, anchors = model.generate(real, 100)
+    assert vectors.shape == (100, 7) and anchors is not None and anchors.shape == (100,)
+    assert np.abs(vectors - real[anchors]).mean() < np.abs(vectors - real[np.roll(anchors, 1)]).mean()
 
 
 def test_bad_mixing_input_names_the_parameter():

@@ -163,6 +163,10 @@ class Fidelity:
         buffer, ~1 = as new as a fresh real transition, >> 1 = off the data
     :param mean_gap: mean over varying dimensions of |mean_syn − mean_real| / std_real (marginal; cannot see dynamics)
     :param std_gap: mean over varying dimensions of |std_syn / std_real − 1| (marginal; cannot see dynamics)
+    :param heldout_anchor_error_ratio: ``dynamics_error_ratio`` of the samples generated near (anchored on) real
+        transitions the ensemble held out; NaN without anchors. Near-real samples sit beside their anchors, and the
+        ensemble fits its own training rows better than held-out ones, so ``dynamics_error_ratio`` reads samples
+        anchored on training rows too kindly; this one compares like with like (held-out anchors, held-out reals)
     """
 
     dynamics_error: float
@@ -171,6 +175,7 @@ class Fidelity:
     novelty_ratio: float
     mean_gap: float
     std_gap: float
+    heldout_anchor_error_ratio: float = float("nan")
 
 
 def varying_dimensions(values: np.ndarray) -> np.ndarray:
@@ -229,14 +234,25 @@ def novelty_ratio(
 
 
 def measure_fidelity(
-    dynamics: DynamicsEnsemble, real: np.ndarray, synthetic: np.ndarray, obs_dim: int, action_dim: int, refit: bool = True
+    dynamics: DynamicsEnsemble,
+    real: np.ndarray,
+    synthetic: np.ndarray,
+    obs_dim: int,
+    action_dim: int,
+    refit: bool = True,
+    anchors: np.ndarray | None = None,
 ) -> Fidelity:
     """
     Judge ``synthetic`` transition vectors [s, a, s', ...] against the ``real`` ones: fit ``dynamics`` on ``real``
     (unless ``refit`` is False, reusing its last fit and held-out split), then compare errors and novelty.
+
+    :param anchors: for samples generated near real transitions, the row of ``real`` each one was generated from
+        (gives ``heldout_anchor_error_ratio``)
     """
+    if anchors is not None and len(anchors) != len(synthetic):
+        raise ValueError(f"anchors must hold one row index per synthetic vector ({len(synthetic)}), got {len(anchors)}")
     if len(synthetic) == 0:
-        return Fidelity(*(float("nan"),) * 6)
+        return Fidelity(*(float("nan"),) * 7)
 
     def split(vectors: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         return split_transitions(vectors, obs_dim, action_dim)
@@ -245,11 +261,22 @@ def measure_fidelity(
         dynamics.fit(*split(real))
     holdout = real[dynamics.holdout]
     real_error = float(dynamics.errors(*split(holdout)).mean())
-    synthetic_error = float(dynamics.errors(*split(synthetic)).mean())
+    synthetic_errors = dynamics.errors(*split(synthetic))
+    synthetic_error = float(synthetic_errors.mean())
+    heldout_anchor_ratio = float("nan")
+    if anchors is not None:
+        near_holdout = np.isin(anchors, dynamics.holdout)
+        if near_holdout.any():
+            heldout_anchor_ratio = float(synthetic_errors[near_holdout].mean()) / max(real_error, 1e-12)
     reference = real[dynamics.train_indices]
     if len(reference) > 20_000:  # bound the k-NN cost: 20k random training transitions stand for all
         reference = reference[dynamics.rng.choice(len(reference), size=20_000, replace=False)]
     novelty = novelty_ratio(reference, holdout, synthetic, dynamics.rng)
     return Fidelity(
-        synthetic_error, real_error, synthetic_error / max(real_error, 1e-12), novelty, *marginal_gaps(real, synthetic)
+        synthetic_error,
+        real_error,
+        synthetic_error / max(real_error, 1e-12),
+        novelty,
+        *marginal_gaps(real, synthetic),
+        heldout_anchor_ratio,
     )

@@ -21,7 +21,9 @@ class DiffusionCallback(BaseCallback):
     with ``fidelity_check``, ``dynamics_error_ratio`` (synthetic next-state error under a one-step dynamics ensemble
     fitted on the real transitions, over that of real held-out transitions: 1.0 = as consistent as real data),
     ``dynamics_error``, ``real_dynamics_error``, ``novelty_ratio`` (nearest-real-neighbour distance over real-to-real:
-    ~0 = copies), ``kept_dynamics_error_ratio`` (after filtering) and the marginal ``mean_gap`` / ``std_gap``
+    ~0 = copies), ``heldout_anchor_error_ratio`` (near-real generation: the ratio of the samples anchored on real
+    transitions the ensemble held out, which the ensemble's fit to its own training rows cannot flatter),
+    ``kept_dynamics_error_ratio`` (after filtering) and the marginal ``mean_gap`` / ``std_gap``
     (blind to the dynamics: for reference only).
     """
 
@@ -37,10 +39,13 @@ class DiffusionCallback(BaseCallback):
         fit = model.diffusion.fit(model.encode(real))
         start = time.perf_counter()
         n_draw = int(np.ceil(model.synthetic_samples / model.synthetic_keep_quantile))
-        generated, dropped = model.sanitize(model.generate(real, n_draw))
+        generated, anchors = model.generate(real, n_draw)
+        generated, finite = model.sanitize(generated)
+        dropped = int((~finite).sum())
+        anchors = None if anchors is None else anchors[finite]
         generate_seconds = time.perf_counter() - start
         start = time.perf_counter()
-        fidelity = model.fidelity(real, generated) if model.fidelity_check else None
+        fidelity = model.fidelity(real, generated, anchors) if model.fidelity_check else None
         kept = model.filter_synthetic(generated, model.synthetic_samples)
         fidelity_seconds = time.perf_counter() - start
         model.store_synthetic(kept)
@@ -64,7 +69,10 @@ class DiffusionCallback(BaseCallback):
                 self.logger.record(
                     "diffusion/kept_dynamics_error_ratio", kept_error / max(fidelity.real_dynamics_error, 1e-12)
                 )
-            summary = f", dynamics error ratio {fidelity.dynamics_error_ratio:.2f}, novelty {fidelity.novelty_ratio:.2f}"
+            summary = f", dynamics error ratio {fidelity.dynamics_error_ratio:.2f}"
+            if anchors is not None:
+                summary += f" ({fidelity.heldout_anchor_error_ratio:.2f} near held-out anchors)"
+            summary += f", novelty {fidelity.novelty_ratio:.2f}"
         if self.verbose > 0:
             print(
                 f"diffusion retrain {model.diffusion_retrains} at step {model.num_timesteps}: loss {fit.loss:.3f}, "

@@ -298,19 +298,23 @@ class PRIDE(PEBBLE):
             return vectors
         return add_states_to_next_states(vectors, self.real_buffer.obs_shape[0], self.real_buffer.action_dim, 1.0)
 
-    def generate(self, real: np.ndarray, n: int) -> np.ndarray:
-        """``n`` synthetic transition vectors [s, a, s'(, terminal)] by ``generation`` from the fitted diffusion."""
+    def generate(self, real: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """
+        ``n`` synthetic transition vectors [s, a, s'(, terminal)] by ``generation`` from the fitted diffusion.
+
+        :return: the vectors, and for ``generation="near_real"`` the row of ``real`` each was generated from (else None)
+        """
         assert self.diffusion is not None
         if self.generation == "near_real":
-            anchors = real[self.diffusion.rng.integers(0, len(real), size=n)]
-            return self.decode(self.diffusion.sample_near(self.encode(anchors), self.anchor_noise))
-        return self.decode(self.diffusion.sample(n))
+            anchors = self.diffusion.rng.integers(0, len(real), size=n)
+            return self.decode(self.diffusion.sample_near(self.encode(real[anchors]), self.anchor_noise)), anchors
+        return self.decode(self.diffusion.sample(n)), None
 
-    def sanitize(self, generated: np.ndarray) -> tuple[np.ndarray, int]:
+    def sanitize(self, generated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
-        Non-finite vectors dropped (and counted), actions clipped to the action bounds, terminal flags rounded at 0.5.
+        Non-finite vectors dropped, actions clipped to the action bounds, terminal flags rounded at 0.5.
 
-        :return: the vectors kept, how many were dropped
+        :return: the vectors kept, and which of ``generated`` they are (a boolean mask: the finite ones)
         """
         finite = np.all(np.isfinite(generated), axis=1)
         kept = generated[finite].copy()
@@ -318,7 +322,7 @@ class PRIDE(PEBBLE):
         np.clip(kept[:, obs_dim : obs_dim + action_dim], -1.0, 1.0, out=kept[:, obs_dim : obs_dim + action_dim])
         if self.model_terminals:
             kept[:, -1] = (kept[:, -1] > 0.5).astype(np.float32)
-        return kept, int((~finite).sum())
+        return kept, finite
 
     def filter_synthetic(self, vectors: np.ndarray, n_keep: int) -> np.ndarray:
         """The ``n_keep`` vectors the ``synthetic_filter`` trusts most (lowest dynamics error or reward disagreement)."""
@@ -342,13 +346,16 @@ class PRIDE(PEBBLE):
         dones = vectors[:, -1] if self.model_terminals else np.zeros(len(vectors), dtype=np.float32)
         self.replay_buffer.synthetic.replace(obs, actions, next_obs, dones, self.reward_model.predict(obs, actions))
 
-    def fidelity(self, real: np.ndarray, synthetic: np.ndarray) -> Fidelity:
-        """Refit the dynamics ensemble on ``real`` and judge ``synthetic`` with it (``measure_fidelity``)."""
+    def fidelity(self, real: np.ndarray, synthetic: np.ndarray, anchors: np.ndarray | None = None) -> Fidelity:
+        """
+        Refit the dynamics ensemble on ``real`` and judge ``synthetic`` with it (``measure_fidelity``; ``anchors``:
+        the row of ``real`` each synthetic vector was generated near, if any).
+        """
         obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
         if self.dynamics is None:
             options = dict(train_steps=500, seed=self.seed, device=self.device)
             self.dynamics = DynamicsEnsemble(obs_dim, action_dim, **{**options, **self.dynamics_kwargs})
-        return measure_fidelity(self.dynamics, real, synthetic, obs_dim, action_dim)
+        return measure_fidelity(self.dynamics, real, synthetic, obs_dim, action_dim, anchors=anchors)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
