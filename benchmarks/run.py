@@ -70,6 +70,35 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     return specs
 
 
+def system_info() -> dict[str, str]:
+    """
+    SB3's system info (OS, Python, SB3, PyTorch, NumPy, Gymnasium versions) plus the simulators' versions and the CPU:
+    the same seed gives the same run only on the same CPU kind and library versions (float rounding differs), so a
+    run records them.
+    """
+    import platform
+    from importlib import metadata
+
+    import torch as th
+    from stable_baselines3.common.utils import get_system_info
+
+    info, _ = get_system_info(print_info=False)
+    for package in ("mujoco", "dm-control", "metaworld", "shimmy", "sb3_pride"):
+        try:
+            info[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            pass
+    cpuinfo = Path("/proc/cpuinfo")
+    models = (
+        [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if line.startswith("model name")]
+        if cpuinfo.exists()
+        else []
+    )
+    info["CPU"] = models[0] if models else platform.processor() or platform.machine()
+    info["PyTorch CPU capability"] = th.backends.cpu.get_cpu_capability()  # which vector kernels torch dispatches to
+    return info
+
+
 def worker(spec: dict[str, Any], folder: Path) -> None:
     """One run, in this process."""
     import numpy as np
@@ -99,7 +128,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     # SB3's logger to progress.csv: reward-model accuracy and true-reward correlation, diffusion fidelity, losses
     model.set_logger(configure(str(folder), ["csv"]))
     (folder / "settings.json").write_text(
-        json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs}, indent=2, default=str)
+        json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs, "system": system_info()}, indent=2, default=str)
     )
     evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
                               log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
