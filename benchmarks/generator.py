@@ -138,15 +138,15 @@ def main() -> None:
         return name not in done and (args.only is None or name in args.only)
 
     # sanity: the yardstick must pass real data and fail broken data
-    anchors = real[yardstick.holdout]
-    if wanted("real held-out"):
-        report("real held-out", anchors, 0, 0)
+    heldout_rows = real[yardstick.holdout]
+    if wanted("real held-out"):  # held-out anchors too: exactly 1 in both ratio columns
+        report("real held-out", heldout_rows, 0, 0, yardstick.holdout)
     if wanted("shuffled s'"):
-        shuffled = anchors.copy()
+        shuffled = heldout_rows.copy()
         shuffled[:, obs_dim + action_dim :] = shuffled[rng.permutation(len(shuffled)), obs_dim + action_dim :]
         report("shuffled s'", shuffled, 0, 0)
     if wanted("s' off by 2 steps"):
-        moved = anchors.copy()
+        moved = heldout_rows.copy()
         delta_std = (real[:, obs_dim + action_dim :] - real[:, :obs_dim]).std(axis=0)
         moved[:, obs_dim + action_dim :] += 2 * delta_std * rng.choice([-1, 1], size=moved[:, :obs_dim].shape)
         report("s' off by 2 steps", moved, 0, 0)

@@ -79,8 +79,9 @@ def test_heldout_anchors_are_judged_like_heldout_reals():
     corrupted = corrupt_next_states(real, 2.0, np.random.default_rng(0))
     assert measure_fidelity(overfit, real, corrupted, 3, 1, refit=False, anchors=rows).heldout_anchor_error_ratio > 2.5
     assert np.isnan(measure_fidelity(overfit, real, real, 3, 1, refit=False).heldout_anchor_error_ratio)
-    with pytest.raises(ValueError, match="anchors"):
-        measure_fidelity(overfit, real, real, 3, 1, refit=False, anchors=rows[:10])
+    for bad in (rows[:10], rows + 0.5, rows + 1):  # one per sample, integers, rows of real
+        with pytest.raises(ValueError, match="anchors"):
+            measure_fidelity(overfit, real, real, 3, 1, refit=False, anchors=bad)
 
 
 def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_path):
@@ -105,7 +106,7 @@ def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_pat
     # real transitions drawn back (copies) are at most as inconsistent as held-out real ones
     assert np.all(ratios["faithful", "dynamics_error_ratio"] < 1.5)
     assert np.all(ratios["corrupted", "dynamics_error_ratio"] > 2.5)
-    # copies of held-out rows are the held-out rows: as consistent as real data by construction
+    # copies of held-out rows (drawn with replacement) read as the held-out rows do, up to sampling noise
     np.testing.assert_allclose(ratios["faithful", "heldout_anchor_error_ratio"], 1.0, rtol=0.2)
     assert np.all(ratios["corrupted", "heldout_anchor_error_ratio"] > 2.5)
 

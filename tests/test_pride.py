@@ -220,6 +220,13 @@ def test_near_real_generation_of_state_changes(tiny_kwargs):
     assert np.abs(vectors - real[anchors]).mean() < np.abs(vectors - real[np.roll(anchors, 1)]).mean()
 
 
+def test_a_generate_override_that_returns_vectors_only_is_told_the_contract(tiny_kwargs):
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)
+    model.generate = lambda real, n: real[np.arange(n) % len(real)]  # the old contract: vectors only
+    with pytest.raises(TypeError, match="generate must return"):
+        model.learn(400)
+
+
 def test_bad_mixing_input_names_the_parameter():
     bad = dict(
         generation="from_scratch",

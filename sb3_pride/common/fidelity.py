@@ -164,9 +164,10 @@ class Fidelity:
     :param mean_gap: mean over varying dimensions of |mean_syn − mean_real| / std_real (marginal; cannot see dynamics)
     :param std_gap: mean over varying dimensions of |std_syn / std_real − 1| (marginal; cannot see dynamics)
     :param heldout_anchor_error_ratio: ``dynamics_error_ratio`` of the samples generated near (anchored on) real
-        transitions the ensemble held out; NaN without anchors. Near-real samples sit beside their anchors, and the
-        ensemble fits its own training rows better than held-out ones, so ``dynamics_error_ratio`` reads samples
-        anchored on training rows too kindly; this one compares like with like (held-out anchors, held-out reals)
+        transitions the ensemble held out from its last fit; NaN without anchors or if none landed there. Near-real
+        samples sit beside their anchors, and the ensemble fits its own training rows better than held-out ones, so
+        ``dynamics_error_ratio`` reads samples anchored on training rows too kindly; this one compares like with like
+        (held-out anchors against held-out reals; under warm-started refits both may have been trained on before)
     """
 
     dynamics_error: float
@@ -246,11 +247,25 @@ def measure_fidelity(
     Judge ``synthetic`` transition vectors [s, a, s', ...] against the ``real`` ones: fit ``dynamics`` on ``real``
     (unless ``refit`` is False, reusing its last fit and held-out split), then compare errors and novelty.
 
+    :param dynamics: the one-step dynamics ensemble that judges
+    :param real: real transition vectors [s, a, s', ...]; with ``refit=False``, the same array the ensemble was last
+        fitted on (its held-out split indexes it)
+    :param synthetic: synthetic transition vectors, laid out as ``real``
+    :param obs_dim: state dimension
+    :param action_dim: action dimension
+    :param refit: fit ``dynamics`` on ``real`` first
     :param anchors: for samples generated near real transitions, the row of ``real`` each one was generated from
         (gives ``heldout_anchor_error_ratio``)
     """
-    if anchors is not None and len(anchors) != len(synthetic):
-        raise ValueError(f"anchors must hold one row index per synthetic vector ({len(synthetic)}), got {len(anchors)}")
+    if anchors is not None:
+        anchors = np.asarray(anchors)
+        if anchors.shape != (len(synthetic),) or not np.issubdtype(anchors.dtype, np.integer):
+            raise ValueError(
+                f"anchors must be one integer row index per synthetic vector, shape ({len(synthetic)},), "
+                f"got {anchors.dtype} of shape {anchors.shape}"
+            )
+        if len(anchors) and (anchors.min() < 0 or anchors.max() >= len(real)):
+            raise ValueError(f"anchors must index rows of real, in [0, {len(real)}), got [{anchors.min()}, {anchors.max()}]")
     if len(synthetic) == 0:
         return Fidelity(*(float("nan"),) * 7)
 

@@ -39,10 +39,15 @@ class DiffusionCallback(BaseCallback):
         fit = model.diffusion.fit(model.encode(real))
         start = time.perf_counter()
         n_draw = int(np.ceil(model.synthetic_samples / model.synthetic_keep_quantile))
-        generated, anchors = model.generate(real, n_draw)
+        generation = model.generate(real, n_draw)
+        if not (isinstance(generation, tuple) and len(generation) == 2):
+            raise TypeError("PRIDE.generate must return (vectors, the row of real each was generated near, or None)")
+        generated, anchors = generation
+        if anchors is not None and np.shape(anchors) != (len(generated),):
+            raise ValueError(f"generate returned {len(generated)} vectors but anchors of shape {np.shape(anchors)}")
         generated, finite = model.sanitize(generated)
         dropped = int((~finite).sum())
-        anchors = None if anchors is None else anchors[finite]
+        anchors = None if anchors is None else np.asarray(anchors)[finite]
         generate_seconds = time.perf_counter() - start
         start = time.perf_counter()
         fidelity = model.fidelity(real, generated, anchors) if model.fidelity_check else None

@@ -302,6 +302,8 @@ class PRIDE(PEBBLE):
         """
         ``n`` synthetic transition vectors [s, a, s'(, terminal)] by ``generation`` from the fitted diffusion.
 
+        :param real: the real transition vectors the diffusion was fitted on (``transition_vectors()``)
+        :param n: how many to generate
         :return: the vectors, and for ``generation="near_real"`` the row of ``real`` each was generated from (else None)
         """
         assert self.diffusion is not None
@@ -348,8 +350,11 @@ class PRIDE(PEBBLE):
 
     def fidelity(self, real: np.ndarray, synthetic: np.ndarray, anchors: np.ndarray | None = None) -> Fidelity:
         """
-        Refit the dynamics ensemble on ``real`` and judge ``synthetic`` with it (``measure_fidelity``; ``anchors``:
-        the row of ``real`` each synthetic vector was generated near, if any).
+        Refit the dynamics ensemble on ``real`` and judge ``synthetic`` with it (``measure_fidelity``).
+
+        :param real: real transition vectors
+        :param synthetic: synthetic transition vectors
+        :param anchors: the row of ``real`` each synthetic vector was generated near, if any
         """
         obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
         if self.dynamics is None:
