@@ -69,7 +69,7 @@ def table(paths: list[Path]) -> str:
             heldout = row.get("heldout_anchor_error_ratio", float("nan"))  # only near-real rows measured after it existed
             lines.append(f"| {task} | {row['name']} | {models} | {normalization} | {row['fit_seconds']:.1f} | "
                          f"{row['seconds_per_10k_samples']:.2f} | {row['dynamics_error']:.2f} | "
-                         f"{row['dynamics_error_ratio']:.2f} | {'—' if heldout != heldout else f'{heldout:.2f}'} | "
+                         f"{row['dynamics_error_ratio']:.2f} | {'—' if np.isnan(heldout) else f'{heldout:.2f}'} | "
                          f"{row['novelty_ratio']:.2f} |")  # fmt: skip
     return "\n".join(lines)
 

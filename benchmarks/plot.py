@@ -189,9 +189,9 @@ def improvements(groups) -> dict:
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
                        and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5
                        and variant(r[0]["settings"]) == variant(settings)]  # fmt: skip
-        if settings.get("tag") not in (None, "", "faithful"):  # an ablation: a variant against "faithful" PRIDE
+        if variant(settings) not in ("", "faithful"):  # an ablation: a variant against "faithful" PRIDE
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
-                       and r[0]["settings"].get("tag") == "faithful" and r[0]["settings"]["ratio"] == 0.5
+                       and variant(r[0]["settings"]) == "faithful" and r[0]["settings"]["ratio"] == 0.5
                        and r[0]["settings"]["feedback"] == settings["feedback"]]  # fmt: skip
         for rival_name, rival in rivals:
             if min(len(runs), len(rival)) >= 2:

@@ -22,7 +22,7 @@ class DiffusionCallback(BaseCallback):
     fitted on the real transitions, over that of real held-out transitions: 1.0 = as consistent as real data),
     ``dynamics_error``, ``real_dynamics_error``, ``novelty_ratio`` (nearest-real-neighbour distance over real-to-real:
     ~0 = copies), ``heldout_anchor_error_ratio`` (near-real generation: the ratio of the samples anchored on real
-    transitions the ensemble held out, which the ensemble's fit to its own training rows cannot flatter),
+    transitions the ensemble held out, compared like with like with held-out real ones),
     ``kept_dynamics_error_ratio`` (after filtering) and the marginal ``mean_gap`` / ``std_gap``
     (blind to the dynamics: for reference only).
     """
