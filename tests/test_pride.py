@@ -218,6 +218,13 @@ def test_near_real_generation_of_state_changes(tiny_kwargs):
     vectors, anchors = model.generate(real, 100)
     assert vectors.shape == (100, 7) and anchors is not None and anchors.shape == (100,)
     assert np.abs(vectors - real[anchors]).mean() < np.abs(vectors - real[np.roll(anchors, 1)]).mean()
+    # sanitize drops a non-finite vector together with its anchor, and rejects anchors that do not match
+    vectors[3, 0] = np.nan
+    kept, kept_anchors = model.sanitize(vectors, anchors)
+    assert len(kept) == 99 and kept_anchors is not None
+    np.testing.assert_array_equal(kept_anchors, np.delete(anchors, 3))
+    with pytest.raises(ValueError, match="anchors must hold one row index per generated vector"):
+        model.sanitize(vectors, anchors[:-1])
 
 
 def test_a_generate_override_that_returns_vectors_only_is_told_the_contract(tiny_kwargs):

@@ -42,12 +42,8 @@ class DiffusionCallback(BaseCallback):
         generation = model.generate(real, n_draw)
         if not (isinstance(generation, tuple) and len(generation) == 2):
             raise TypeError("PRIDE.generate must return (vectors, the row of real each was generated near, or None)")
-        generated, anchors = generation
-        if anchors is not None and np.shape(anchors) != (len(generated),):
-            raise ValueError(f"generate returned {len(generated)} vectors but anchors of shape {np.shape(anchors)}")
-        generated, finite = model.sanitize(generated)
-        dropped = int((~finite).sum())
-        anchors = None if anchors is None else np.asarray(anchors)[finite]
+        generated, anchors = model.sanitize(*generation)
+        dropped = len(generation[0]) - len(generated)
         generate_seconds = time.perf_counter() - start
         start = time.perf_counter()
         fidelity = model.fidelity(real, generated, anchors) if model.fidelity_check else None

@@ -312,19 +312,25 @@ class PRIDE(PEBBLE):
             return self.decode(self.diffusion.sample_near(self.encode(real[anchors]), self.anchor_noise)), anchors
         return self.decode(self.diffusion.sample(n)), None
 
-    def sanitize(self, generated: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def sanitize(self, generated: np.ndarray, anchors: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
         """
         Non-finite vectors dropped, actions clipped to the action bounds, terminal flags rounded at 0.5.
 
-        :return: the vectors kept, and which of ``generated`` they are (a boolean mask: the finite ones)
+        :param generated: transition vectors from ``generate``
+        :param anchors: the row of the real data each vector was generated near (``generate``'s second output), or None
+        :return: the vectors kept, and the anchors of those (None if ``anchors`` is None)
         """
+        if anchors is not None and np.shape(anchors) != (len(generated),):
+            raise ValueError(
+                f"anchors must hold one row index per generated vector ({len(generated)}), got shape {np.shape(anchors)}"
+            )
         finite = np.all(np.isfinite(generated), axis=1)
         kept = generated[finite].copy()
         obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
         np.clip(kept[:, obs_dim : obs_dim + action_dim], -1.0, 1.0, out=kept[:, obs_dim : obs_dim + action_dim])
         if self.model_terminals:
             kept[:, -1] = (kept[:, -1] > 0.5).astype(np.float32)
-        return kept, finite
+        return kept, None if anchors is None else np.asarray(anchors)[finite]
 
     def filter_synthetic(self, vectors: np.ndarray, n_keep: int) -> np.ndarray:
         """The ``n_keep`` vectors the ``synthetic_filter`` trusts most (lowest dynamics error or reward disagreement)."""
