@@ -161,7 +161,7 @@ def improvements(groups) -> dict:
     P(X > Y) on the final true return, with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
     PRIDE configuration of a task against every PEBBLE configuration (each UTD) at the task's largest budget and at
     its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u of the same variant and budget (Fig. 5), each tagged PRIDE
-    variant against "faithful" PRIDE at u = 0.5 and the same budget (the ablation), each tagged
+    variant against "faithful" PRIDE at the same u and budget (the ablation), each tagged
     PEBBLE variant against plain PEBBLE at its budget, and plain PEBBLE at a smaller budget against the largest. Pairs where either side has fewer than two seeds are left out.
     """
     from rliable import metrics
@@ -191,7 +191,7 @@ def improvements(groups) -> dict:
                        and variant(r[0]["settings"]) == variant(settings)]  # fmt: skip
         if variant(settings) not in ("", "faithful"):  # an ablation: a variant against "faithful" PRIDE
             rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
-                       and variant(r[0]["settings"]) == "faithful" and r[0]["settings"]["ratio"] == 0.5
+                       and variant(r[0]["settings"]) == "faithful" and r[0]["settings"]["ratio"] == settings["ratio"]
                        and r[0]["settings"]["feedback"] == settings["feedback"]]  # fmt: skip
         for rival_name, rival in rivals:
             if min(len(runs), len(rival)) >= 2:
