@@ -223,8 +223,10 @@ def test_near_real_generation_of_state_changes(tiny_kwargs):
     kept, kept_anchors = model.sanitize(vectors, anchors)
     assert len(kept) == 99 and kept_anchors is not None
     np.testing.assert_array_equal(kept_anchors, np.delete(anchors, 3))
-    with pytest.raises(ValueError, match="anchors must hold one row index per generated vector"):
+    with pytest.raises(ValueError, match="anchors must be one integer row index per generated vector"):
         model.sanitize(vectors, anchors[:-1])
+    with pytest.raises(ValueError, match="anchors must be one integer row index"):  # row positions, not values
+        model.sanitize(vectors, anchors.astype(np.float32))
 
 
 def test_a_generate_override_that_returns_vectors_only_is_told_the_contract(tiny_kwargs):

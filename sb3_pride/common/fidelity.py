@@ -234,6 +234,27 @@ def novelty_ratio(
     return median_distance(synthetic) / max(median_distance(real_queries), 1e-12)
 
 
+def check_anchors(anchors: np.ndarray, n_vectors: int, n_rows: int | None = None) -> np.ndarray:
+    """
+    Check that ``anchors`` hold one integer row index per generated vector (and, given ``n_rows``, that each indexes
+    one of the ``n_rows`` real rows), so that no sample is judged against, or kept with, the wrong real transition.
+
+    :param anchors: the real row each generated vector was generated near
+    :param n_vectors: how many generated vectors there are
+    :param n_rows: how many real rows the anchors index, or None to skip the range check
+    :return: ``anchors`` as an array
+    """
+    anchors = np.asarray(anchors)
+    if anchors.shape != (n_vectors,) or not np.issubdtype(anchors.dtype, np.integer):
+        raise ValueError(
+            f"anchors must be one integer row index per generated vector, shape ({n_vectors},), "
+            f"got {anchors.dtype} of shape {anchors.shape}"
+        )
+    if n_rows is not None and len(anchors) and (anchors.min() < 0 or anchors.max() >= n_rows):
+        raise ValueError(f"anchors must index rows of the real data, in [0, {n_rows}), got [{anchors.min()}, {anchors.max()}]")
+    return anchors
+
+
 def measure_fidelity(
     dynamics: DynamicsEnsemble,
     real: np.ndarray,
@@ -258,14 +279,7 @@ def measure_fidelity(
         (gives ``heldout_anchor_error_ratio``)
     """
     if anchors is not None:
-        anchors = np.asarray(anchors)
-        if anchors.shape != (len(synthetic),) or not np.issubdtype(anchors.dtype, np.integer):
-            raise ValueError(
-                f"anchors must be one integer row index per synthetic vector, shape ({len(synthetic)},), "
-                f"got {anchors.dtype} of shape {anchors.shape}"
-            )
-        if len(anchors) and (anchors.min() < 0 or anchors.max() >= len(real)):
-            raise ValueError(f"anchors must index rows of real, in [0, {len(real)}), got [{anchors.min()}, {anchors.max()}]")
+        anchors = check_anchors(anchors, len(synthetic), len(real))
     if len(synthetic) == 0:
         return Fidelity(*(float("nan"),) * 7)
 

@@ -8,7 +8,7 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
 from sb3_pride.pride.callbacks import DiffusionCallback
 from sb3_pride.common.diffusion import NORMALIZATIONS, ElucidatedDiffusion
-from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, measure_fidelity, split_transitions
+from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, check_anchors, measure_fidelity, split_transitions
 from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 from sb3_pride.pebble.pebble import PEBBLE
@@ -324,17 +324,15 @@ class PRIDE(PEBBLE):
         :param anchors: the row of the real data each vector was generated near (``generate``'s second output), or None
         :return: the vectors kept, and the anchors of those (None if ``anchors`` is None)
         """
-        if anchors is not None and np.shape(anchors) != (len(generated),):
-            raise ValueError(
-                f"anchors must hold one row index per generated vector ({len(generated)}), got shape {np.shape(anchors)}"
-            )
+        if anchors is not None:
+            anchors = check_anchors(anchors, len(generated))
         finite = np.all(np.isfinite(generated), axis=1)
         kept = generated[finite].copy()
         obs_dim, action_dim = self.real_buffer.obs_shape[0], self.real_buffer.action_dim
         np.clip(kept[:, obs_dim : obs_dim + action_dim], -1.0, 1.0, out=kept[:, obs_dim : obs_dim + action_dim])
         if self.model_terminals:
             kept[:, -1] = (kept[:, -1] > 0.5).astype(np.float32)
-        return kept, None if anchors is None else np.asarray(anchors)[finite]
+        return kept, None if anchors is None else anchors[finite]
 
     def filter_synthetic(self, vectors: np.ndarray, n_keep: int) -> np.ndarray:
         """The ``n_keep`` vectors the ``synthetic_filter`` trusts most (lowest dynamics error or reward disagreement)."""
