@@ -3,6 +3,8 @@ The paper's figures re-drawn from ``benchmarks/run.py`` results, plus an rliable
 
     python benchmarks/plot.py --runs benchmarks/results/runs --out benchmarks/results/figures
 
+``--runs`` takes several folders and pools their runs (the same configuration's seeds from each).
+
 For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 and of SAC
 (the paper's Figures 2–4: equal feedback, and PRIDE at reduced feedback), the synthetic-ratio sweep of PRIDE
 (Figure 5) and, for Meta-World, success rates (Figure 3). The aggregate is the interquartile mean (IQM) of the
@@ -268,11 +270,18 @@ def summary(groups) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--runs", type=Path, default=Path("benchmarks/results/runs"))
+    parser.add_argument("--runs", type=Path, nargs="+", default=[Path("benchmarks/results/runs")],
+                        help="folders of runs, pooled (e.g. runs/ and a folder of extra seeds)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/figures"))
     args = parser.parse_args()
     args.out.mkdir(parents=True, exist_ok=True)
-    groups = load_runs(args.runs)
+    groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for folder in args.runs:
+        for key, runs in load_runs(folder).items():
+            seeds = {run["settings"]["seed"] for run in groups[key]} & {run["settings"]["seed"] for run in runs}
+            if seeds:
+                parser.error(f"--runs: {key[0]} {key[1]} has seeds {sorted(seeds)} in {folder} and in an earlier folder")
+            groups[key].extend(runs)
     for task in sorted({task for task, _ in groups}):
         plot_curves(groups, task, lambda s: s["algo"] != "pride" or s["ratio"] == 0.5, "true_return", "true return",
                     f"{task} (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
