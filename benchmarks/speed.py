@@ -56,7 +56,8 @@ class TimedDiffusion(DiffusionCallback):
             TIMES["diffusion_train_seconds"] += values["diffusion/train_seconds"]
             TIMES["generate_seconds"] += values["diffusion/generate_seconds"]
             TIMES["fidelity_seconds"] += values["diffusion/fidelity_seconds"]
-            TIMES["generated"] += self.model.synthetic_samples
+            # vectors drawn (synthetic_samples / synthetic_keep_quantile), not only the synthetic_samples kept
+            TIMES["drawn"] += round(values["diffusion/samples_per_second"] * values["diffusion/generate_seconds"])
         return result
 
 
@@ -102,10 +103,10 @@ def main() -> None:
             if base in medians and base != algo:
                 line += f"  x{median['seconds'] / medians[base]['seconds']:.3f} of {base.upper()}"
         line += f"  | feedback sessions {median.get('feedback_seconds', 0):.1f} s"
-        if median.get("generated"):
+        if median.get("drawn"):
             line += (
                 f", diffusion training {median['diffusion_train_seconds']:.1f} s, generation "
-                f"{median['generate_seconds']:.1f} s ({median['generated'] / median['generate_seconds']:.0f} samples/s), "
+                f"{median['generate_seconds']:.1f} s ({median['drawn'] / median['generate_seconds']:.0f} samples drawn/s), "
                 f"fidelity check and filter {median['fidelity_seconds']:.1f} s"
             )
         print(line)

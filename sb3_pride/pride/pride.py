@@ -44,14 +44,15 @@ class PRIDE(PEBBLE):
     termination by the first retrain (never on DMC or Meta-World, whose episodes only time out).
 
     Every other parameter is PEBBLE's (and SAC's), with the same defaults; paper-scale diffusion settings (SynthER's:
-    width 1024, 6 blocks, 100k training steps, 128 sampling steps, 1M samples) are in ``hyperparams/pride.yml``. The defaults
-    here are sized for a CPU and chosen by ``benchmarks/generator.py`` (``benchmarks/results/README.md``): the
-    paper's generator (an unconditional model of [s, a, s'], 256 × 3 blocks / 2000 steps) makes next states 2.9–3.8×
-    as inconsistent with the dynamics as real held-out ones on walker-walk; modelling s' − s and generating near
-    real transitions (σ = 0.25) brings that to 1.6× standalone, at a third of the sampling cost. Inside a CPU-tier
-    run (``hyperparams/cpu/pride.yml``) with 4000 warm-started steps per retrain it reads 1.41× at the last retrain
-    on walker-walk (1.54× with 2000 steps, 5 seeds each; 4000 costs ~7% more wall time). Every sample then has a
-    real neighbour about as close as a fresh real transition has.
+    width 1024, 6 blocks, 100k training steps, 128 sampling steps; 200k samples per generation here) are in
+    ``hyperparams/pride.yml``. The defaults here are sized for a CPU and chosen by ``benchmarks/generator.py``
+    (``benchmarks/results/README.md``): the paper's generator (an unconditional model of [s, a, s'], 256 × 3 blocks /
+    2000 steps, 32 to 8 sampling steps) makes next states 3.4–7.3× as inconsistent with the dynamics as real held-out
+    ones on walker-walk; modelling s' − s and generating near real transitions (σ = 0.25) brings that to 1.6×
+    standalone, at a third of the sampling cost. Inside a CPU-tier run (``hyperparams/cpu/pride.yml``) with 4000
+    warm-started steps per retrain it reads 1.41× at the last retrain on walker-walk (1.54× with 2000 steps, 5 seeds
+    each; 4000 costs ~7% more wall time). Every sample then has a real neighbour about as close as a fresh real
+    transition has.
 
     :param synthetic_ratio: u, the synthetic share of each SAC minibatch, in [0, 1] (paper: 0.5). With 0 the
         diffusion model is never trained and PRIDE trains exactly as PEBBLE
