@@ -30,6 +30,8 @@ model = sb3_pride.PRIDE(
     "Pendulum-v1",
     seed=0,
     diffusion_interval=200,
+    synthetic_start=0,  # PRIDE()'s default, 10k, is sized for 50k-step runs
+    synthetic_ramp=0,
     synthetic_samples=256,
     diffusion_width=16,
     diffusion_blocks=1,

@@ -15,9 +15,11 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
+from tests.test_pride import PAPER_MIXING
 
 #: a diffusion phase small enough for tests, retraining from the first feedback session on
 TINY_DIFFUSION = dict(
+    **PAPER_MIXING,
     diffusion_interval=200,
     synthetic_samples=500,
     diffusion_width=32,

@@ -71,10 +71,12 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
     """The reset updates after the first session (and every later update) use r̂, never r_int (B-Pref's
     update_after_reset). r_int is made 1000 per step: any of it reaching the reset would show."""
     from sb3_pride import PRIDE
+    from tests.test_pride import PAPER_MIXING
 
     if algo == "pride":
         model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_samples=256, diffusion_train_steps=5,
-                      diffusion_sample_steps=2, diffusion_width=16, diffusion_blocks=1, **tiny_kwargs)  # fmt: skip
+                      diffusion_sample_steps=2, diffusion_width=16, diffusion_blocks=1, **PAPER_MIXING,
+                      **tiny_kwargs)  # fmt: skip
     else:
         model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.state_entropy = lambda obs, all_obs, update_stats=True: th.full((len(obs), 1), 1000.0)
@@ -164,3 +166,26 @@ def test_a_custom_teacher_is_checked(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=teacher, **tiny_kwargs)
     with pytest.raises(ValueError, match="teacher labels"):
         model.learn(400)
+
+
+@pytest.mark.parametrize("algo", ["pebble", "pride"])
+def test_real_only_critic_diagnostics_are_logged_after_pretraining(tiny_kwargs, algo, tmp_path):
+    """train/critic_loss_real and train/q_real: the critic on real-only minibatches, logged by both algorithms from
+    the first feedback session on (so PRIDE's mixed batches and PEBBLE's real ones are compared like for like)."""
+    import pandas as pd
+    from stable_baselines3.common.logger import configure
+
+    from sb3_pride import PRIDE
+    from tests.test_pride import TINY_DIFFUSION
+
+    extra = TINY_DIFFUSION if algo == "pride" else {}
+    model = (PRIDE if algo == "pride" else PEBBLE)("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **extra)
+    model.diagnostic_interval = 20
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(600, log_interval=1)  # the first session at step 300
+    progress = pd.read_csv(tmp_path / "progress.csv")
+    for key in ("train/critic_loss_real", "train/q_real"):
+        logged = progress[[key, "time/total_timesteps"]].dropna()
+        assert len(logged) >= 1 and np.all(np.isfinite(logged[key]))
+        assert logged["time/total_timesteps"].min() > 300  # never during pre-training, where r_int is the reward
+    assert (progress["train/critic_loss_real"].dropna() >= 0).all()

@@ -7,7 +7,10 @@ from stable_baselines3.common.env_util import make_vec_env
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
 
 #: a diffusion model small enough for tests
+# the paper's mixing (PRIDE()'s defaults delay it to step 10k): synthetic data from the first reward model on
+PAPER_MIXING = dict(synthetic_start=0, synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0)
 TINY_DIFFUSION = dict(
+    **PAPER_MIXING,
     diffusion_interval=300,
     synthetic_samples=2000,
     diffusion_width=64,
@@ -153,8 +156,8 @@ TINY_DYNAMICS = dict(dynamics_kwargs=dict(width=64, train_steps=200))
 
 
 def test_delayed_start_and_ramp_of_u(tiny_kwargs):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_start=600, synthetic_ramp=300,
-                  **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)  # fmt: skip
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs,
+                  **{**TINY_DIFFUSION, "synthetic_start": 600, "synthetic_ramp": 300}, **TINY_DYNAMICS)  # fmt: skip
     model.learn(500)  # reward model since 300, but no synthetic data before step 600
     assert model.diffusion_retrains == 0 and model.replay_buffer.synthetic.size() == 0
     model.learn(250, reset_num_timesteps=False)
@@ -171,7 +174,9 @@ def test_delayed_start_and_ramp_of_u(tiny_kwargs):
 
 
 def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, diffusion_window=200, **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)
+    model = PRIDE(
+        "MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **{**TINY_DIFFUSION, "diffusion_window": 200}, **TINY_DYNAMICS
+    )
     model.learn(450)
     vectors = model.transition_vectors()
     buffer = model.real_buffer
@@ -182,8 +187,8 @@ def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
 
 @pytest.mark.parametrize("synthetic_filter", ["dynamics", "reward"])
 def test_keep_quantile_keeps_what_the_filter_trusts(tiny_kwargs, synthetic_filter):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_keep_quantile=0.5, synthetic_filter=synthetic_filter,
-                  **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)  # fmt: skip
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_filter=synthetic_filter, **tiny_kwargs,
+                  **{**TINY_DIFFUSION, "synthetic_keep_quantile": 0.5}, **TINY_DYNAMICS)  # fmt: skip
     model.learn(400)
     assert model.replay_buffer.synthetic.size() == TINY_DIFFUSION["synthetic_samples"]
     real = model.transition_vectors()

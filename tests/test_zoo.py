@@ -65,6 +65,22 @@ def test_files_cover_the_papers_tasks_and_pride_is_pebble_plus_diffusion():
             assert {k: v for k, v in pebble[key].items() if k not in PEBBLE_KEYS} == sac[key]
 
 
+def test_pride_defaults_are_the_best_measured_cpu_configuration():
+    """PRIDE()'s own defaults are hyperparams/cpu/pride.yml's walker-walk entry (benchmarks/results/README.md), and
+    the paper-scale file spells out the paper's mixing rather than inheriting them."""
+    import inspect
+
+    defaults = {name: p.default for name, p in inspect.signature(PRIDE.__init__).parameters.items()}
+    pebble_defaults = inspect.signature(PEBBLE.__init__).parameters
+    walker = entries("cpu/pride.yml")["dm_control/walker-walk-v0"]
+    own = {key: value for key, value in walker.items() if key in defaults and key not in pebble_defaults}
+    assert {"synthetic_start", "diffusion_window", "synthetic_keep_quantile", "diffusion_train_steps"} <= set(own)
+    assert own == {key: defaults[key] for key in own}
+    for entry in entries("pride.yml").values():
+        assert (entry["synthetic_start"], entry["synthetic_ramp"], entry["diffusion_window"]) == (0, 0, None)
+        assert entry["synthetic_keep_quantile"] == 1.0 and entry["generation"] == "unconditional"
+
+
 @pytest.mark.parametrize("name", FILES)
 def test_every_shipped_entry_builds_a_model(name, tmp_path):
     from rl_zoo3.exp_manager import ExperimentManager

@@ -43,21 +43,25 @@ class PRIDE(PEBBLE):
     rewards stale until the next generation.) Terminal flags are modelled only if the real buffer holds a true
     termination by the first retrain (never on DMC or Meta-World, whose episodes only time out).
 
-    Every other parameter is PEBBLE's (and SAC's), with the same defaults; paper-scale diffusion settings (SynthER's:
-    width 1024, 6 blocks, 100k training steps, 128 sampling steps; 200k samples per generation here) are in
-    ``hyperparams/pride.yml``. The defaults here are sized for a CPU and chosen by ``benchmarks/generator.py``
-    (``benchmarks/results/README.md``): the paper's generator (an unconditional model of [s, a, s'], 256 × 3 blocks /
-    2000 steps, 32 to 8 sampling steps) makes next states 3.4–7.3× as inconsistent with the dynamics as real held-out
-    ones on walker-walk; modelling s' − s and generating near real transitions (σ = 0.25) brings that to 1.6×
-    standalone, at a third of the sampling cost. Inside a CPU-tier run (``hyperparams/cpu/pride.yml``) with 4000
-    warm-started steps per retrain it reads 1.41× at the last retrain on walker-walk (1.54× with 2000 steps, 5 seeds
-    each; 4000 costs ~7% more wall time). Every sample then has a real neighbour about as close as a fresh real
-    transition has.
+    Every other parameter is PEBBLE's (and SAC's), with the same defaults. PRIDE's own defaults are the best
+    configuration measured (``benchmarks/results/README.md``; ``hyperparams/cpu/pride.yml``'s walker-walk entry):
+    the paper's generator (an unconditional model of [s, a, s'], 256 × 3 blocks / 2000 steps, 32 to 8 sampling
+    steps) makes next states 3.4–7.3× as inconsistent with the dynamics as real held-out ones on walker-walk;
+    modelling s' − s and generating near real transitions (σ = 0.25) brings that to 1.6× standalone, at a third of
+    the sampling cost, and with 4000 warm-started steps per retrain it reads 1.41× at the last retrain of a CPU-tier
+    run (1.54× with 2000 steps, 5 seeds each; 4000 costs ~7% more wall time). Every sample then has a real neighbour
+    about as close as a fresh real transition has. The mixing defaults (synthetic data from step 10k, u ramped over
+    5k steps, a 20k-transition window, the better-judged half of the samples kept) are on because with the paper's
+    mixing the same generator ends below PEBBLE on walker-walk (275.3 against 349.4, P = 0.00, 3 and 5 seeds) while
+    with them it ties or leads it; no one of them is needed once the other two are on. Their step counts were
+    measured on 50k-step runs: scale them with the run. Paper-scale diffusion settings (SynthER's: width 1024, 6
+    blocks, 100k training steps, 128 sampling steps; 200k samples per generation here) are in
+    ``hyperparams/pride.yml`` with the paper's recipe.
 
     :param synthetic_ratio: u, the synthetic share of each SAC minibatch, in [0, 1] (paper: 0.5). With 0 the
         diffusion model is never trained and PRIDE trains exactly as PEBBLE
     :param diffusion_interval: R, env steps between diffusion retrain-and-generate (paper: 10k)
-    :param synthetic_samples: transitions generated per retrain; they replace the synthetic buffer
+    :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
     :param diffusion_width: width of the denoiser's residual blocks
     :param diffusion_blocks: residual blocks of the denoiser
@@ -79,7 +83,7 @@ class PRIDE(PEBBLE):
     :param anchor_noise: σ (the diffusion's normalized units) to which real transitions are noised for
         ``generation="near_real"``; small stays close to the data, large forgets it
     :param synthetic_start: no synthetic data is generated or mixed before this env step (besides waiting for the
-        first reward model, which always holds)
+        first reward model, which always holds; paper: 0)
     :param synthetic_ramp: env steps over which u grows linearly from 0 to ``synthetic_ratio`` after the first
         generation (0: at once, as the paper)
     :param diffusion_window: fit the diffusion (and anchor generation) on the most recent this-many real
@@ -93,9 +97,9 @@ class PRIDE(PEBBLE):
         (``diffusion/novelty_ratio``); needed by ``synthetic_filter="dynamics"``
     :param dynamics_kwargs: ``DynamicsEnsemble`` arguments (``n_members``, ``width``, ``train_steps``, ...)
 
-    The paper's recipe: ``model_state_change=False, generation="unconditional", synthetic_start=0,
-    synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0`` with its diffusion sizes
-    (``hyperparams/pride.yml``).
+    The paper's recipe: ``model_state_change=False, generation="unconditional", diffusion_interval=10_000,
+    synthetic_start=0, synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0`` with its diffusion
+    sizes (``hyperparams/pride.yml``).
     """
 
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = DualReplayBuffer  # type: ignore[assignment]
@@ -106,8 +110,8 @@ class PRIDE(PEBBLE):
         policy: str | type[SACPolicy],
         env: GymEnv | str,
         synthetic_ratio: float = 0.5,
-        diffusion_interval: int = 10_000,
-        synthetic_samples: int = 20_000,
+        diffusion_interval: int = 5000,
+        synthetic_samples: int = 10_000,
         synthetic_buffer_size: int | None = None,
         diffusion_width: int = 256,
         diffusion_blocks: int = 3,
@@ -119,10 +123,10 @@ class PRIDE(PEBBLE):
         model_state_change: bool = True,
         generation: str = "near_real",
         anchor_noise: float = 0.25,
-        synthetic_start: int = 0,
-        synthetic_ramp: int = 0,
-        diffusion_window: int | None = None,
-        synthetic_keep_quantile: float = 1.0,
+        synthetic_start: int = 10_000,
+        synthetic_ramp: int = 5000,
+        diffusion_window: int | None = 20_000,
+        synthetic_keep_quantile: float = 0.5,
         synthetic_filter: str = "dynamics",
         fidelity_check: bool = True,
         dynamics_kwargs: dict[str, Any] | None = None,
@@ -175,7 +179,11 @@ class PRIDE(PEBBLE):
         check_real("synthetic_keep_quantile", synthetic_keep_quantile, lambda q: 0.0 < q <= 1.0, "in (0, 1]")
         check_choice("synthetic_filter", synthetic_filter, SYNTHETIC_FILTERS)
         if synthetic_keep_quantile < 1.0 and synthetic_filter == "dynamics" and not fidelity_check:
-            raise ValueError("synthetic_filter='dynamics' needs fidelity_check=True (the dynamics ensemble it uses)")
+            raise ValueError(
+                f"synthetic_filter='dynamics' with synthetic_keep_quantile={synthetic_keep_quantile} needs "
+                "fidelity_check=True (the dynamics ensemble it uses); set synthetic_keep_quantile=1.0 to keep every "
+                "sample, or synthetic_filter='reward'"
+            )
         replay_buffer_kwargs = dict(replay_buffer_kwargs or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
