@@ -56,6 +56,18 @@ def collect(task: str, n: int, seed: int) -> tuple[np.ndarray, int]:
     return np.asarray(rows, dtype=np.float32), action.shape[0]
 
 
+#: the generators' (width, blocks, training steps)
+SIZES = [(256, 2, 1000), (256, 3, 2000), (256, 3, 4000), (256, 3, 5000), (512, 3, 2000), (512, 3, 5000)]
+#: samples drawn per generation for the filtered rows, of which --samples are kept
+DRAWN = (20_000, 40_000)
+
+
+def kept_name(width: int, blocks: int, steps: int, drawn: int, kept: int) -> str:
+    return (
+        f"near real (SDEdit sigma 0.25) {width}x{blocks} {steps} steps, {kept // 1000}k of {drawn // 1000}k kept by dynamics"
+    )
+
+
 def table(paths: list[Path]) -> str:
     """One markdown row per configuration: task, what it models, normalization, dynamics error ratio, novelty, seconds."""
     lines = ["| task | generator | models | normalization | fit s | s per 10k samples | dynamics error | ratio to real | "
@@ -168,10 +180,11 @@ def main() -> None:
 
     # unconditional generation (the paper's and SynthER's), size x budget x sampler steps
     fitted: dict[tuple, tuple[ElucidatedDiffusion, float]] = {}
-    for width, blocks, steps in [(256, 2, 1000), (256, 3, 2000), (256, 3, 5000), (512, 3, 2000), (512, 3, 5000)]:
+    for width, blocks, steps in SIZES:
         name = f"unconditional {width}x{blocks} {steps} steps"
         anchored = [f"near real (SDEdit sigma {sigma}) {width}x{blocks} {steps} steps" for sigma in (0.25, 0.5, 1.0, 2.0)]
         anchored.append(f"s' given real (s, a) {width}x{blocks} {steps} steps")
+        anchored += [kept_name(width, blocks, steps, drawn, args.samples) for drawn in DRAWN]
         if not any(wanted(other) for other in [f"{name} {n} heun" for n in (8, 16, 32)] + anchored):
             continue
         diffusion = model(width, blocks, steps, 16)
@@ -220,6 +233,29 @@ def main() -> None:
             synthetic = decode(diffusion.sample_given(encode(anchor_rows), np.arange(obs_dim + action_dim)))
             report(name, synthetic, fit_seconds, time.perf_counter() - start, anchor_indices, mode="inpaint s'", width=width,
                    blocks=blocks, train_steps=steps, sample_steps=16)  # fmt: skip
+
+    # samples per generation: draw more near-real samples (σ 0.25) than are kept and keep the --samples that a second
+    # dynamics ensemble (another seed, PRIDE's own filter settings) trusts most, as synthetic_keep_quantile does; the
+    # yardstick, not the filter's own ensemble, judges what is kept
+    judge: DynamicsEnsemble | None = None
+    for (width, blocks, steps), (diffusion, fit_seconds) in fitted.items():
+        for drawn in DRAWN:
+            name = kept_name(width, blocks, steps, drawn, args.samples)
+            if not wanted(name):
+                continue
+            if judge is None:
+                start = time.perf_counter()
+                judge = DynamicsEnsemble(obs_dim, action_dim, seed=args.seed + 1)
+                judge.fit(*split_transitions(real, obs_dim, action_dim))
+                judge_seconds = time.perf_counter() - start
+            anchor_indices = rng.integers(0, len(real), size=drawn)
+            diffusion.sample_steps = 8
+            start = time.perf_counter()
+            synthetic = decode(diffusion.sample_near(encode(real[anchor_indices]), 0.25))
+            kept = np.argsort(judge.errors(*split_transitions(synthetic, obs_dim, action_dim)), kind="stable")[: args.samples]
+            report(name, synthetic[kept], fit_seconds, time.perf_counter() - start, anchor_indices[kept], mode="sdedit, filtered",
+                   start_sigma=0.25, width=width, blocks=blocks, train_steps=steps, sample_steps=8, drawn=drawn,
+                   filter_fit_seconds=round(judge_seconds, 2))  # fmt: skip
 
 
 if __name__ == "__main__":
