@@ -6,5 +6,5 @@ cd "$(dirname "$0")/.."
 JOBS=${JOBS:-1}
 OUT=${OUT:-benchmarks/results/runs}
 for seed in ${SEEDS:-0 1 2 3 4}; do
-  python benchmarks/run.py --tier cpu --tasks button-press-v3 --algos pride pebble --feedback 2000 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
+  python benchmarks/run.py --tier cpu --tasks button-press-v3 --algos pride pebble --feedback 2000 --ratios 0.5 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
 done

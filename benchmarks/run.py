@@ -6,8 +6,9 @@ A grid of training runs — algorithm × task × seed × feedback budget × synt
         --feedback 400 200 --ratios 0.5 --jobs 2 --out benchmarks/results/runs
 
 Settings come from ``hyperparams/<tier>/<algo>.yml`` (``--tier paper`` uses ``hyperparams/<algo>.yml``);
-``--feedback`` overrides ``max_feedback`` and ``--ratios`` overrides PRIDE's ``synthetic_ratio``
-(SAC on the true reward ignores both). Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
+``--feedback`` overrides ``max_feedback`` and ``--ratios`` overrides PRIDE's ``synthetic_ratio``; left out, each
+task gets its YAML entry's own value (e.g. u = 0.25 on cheetah-run, 2000 queries on Meta-World). SAC on the true
+reward ignores both. Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
 EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv``, ``result.json`` and
 ``progress.csv`` (SB3's logger: feedback counts, reward-model accuracy and true-reward correlation, diffusion
 fidelity and timings, SAC losses).
@@ -57,16 +58,34 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
     return overrides
 
 
+def yaml_entry(tier: str, algo: str, task: str) -> tuple[int, dict[str, Any]]:
+    """``(n_timesteps, constructor kwargs)`` of the task's entry in ``hyperparams/<tier>/<algo>.yml``."""
+    from sb3_pride.zoo import hyperparams_dir, model_kwargs
+
+    config = hyperparams_dir() / ("" if tier == "paper" else tier) / f"{algo}.yml"
+    if not config.exists():
+        raise SystemExit(f"--tier {tier!r}: no hyperparameter file {config}")
+    try:
+        return model_kwargs(config, env_id(task))
+    except KeyError:
+        raise SystemExit(f"--tasks: {config} has no entry for {env_id(task)!r}") from None
+
+
 def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     specs, seen = [], set()
     # seeds outermost: every cell gets its first seed before any gets its second
-    for seed, task, algo, feedback, ratio in itertools.product(args.seeds, args.tasks, args.algos, args.feedback, args.ratios):
-        spec = dict(algo=algo, task=task, seed=seed, feedback=feedback, ratio=ratio, tier=args.tier,
-                    eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps,
-                    tag=args.tag, overrides=parse_overrides(args.set))  # fmt: skip
-        if run_name(spec) not in seen:  # SAC ignores feedback and ratio; PEBBLE ignores ratio
-            seen.add(run_name(spec))
-            specs.append(spec)
+    for seed, task, algo in itertools.product(args.seeds, args.tasks, args.algos):
+        _, kwargs = yaml_entry(args.tier, algo, task)
+        # left out, the budget and u are the YAML entry's own (SAC has neither: its run names ignore them)
+        feedbacks = args.feedback or [kwargs.get("max_feedback")]
+        ratios = args.ratios or [kwargs.get("synthetic_ratio")]
+        for feedback, ratio in itertools.product(feedbacks, ratios):
+            spec = dict(algo=algo, task=task, seed=seed, feedback=feedback, ratio=ratio, tier=args.tier,
+                        eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps,
+                        tag=args.tag, overrides=parse_overrides(args.set))  # fmt: skip
+            if run_name(spec) not in seen:  # SAC ignores feedback and ratio; PEBBLE ignores ratio
+                seen.add(run_name(spec))
+                specs.append(spec)
     return specs
 
 
@@ -109,11 +128,9 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     from stable_baselines3.common.logger import configure
 
     import sb3_pride
-    from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
     th.set_num_threads(1)
-    config = hyperparams_dir() / ("" if spec["tier"] == "paper" else spec["tier"]) / f"{spec['algo']}.yml"
-    n_timesteps, kwargs = model_kwargs(config, env_id(spec["task"]))
+    n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
     if spec["algo"] != "sac":
         kwargs["max_feedback"] = spec["feedback"]
     if spec["algo"] == "pride":
@@ -148,13 +165,15 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     (folder / "result.json").write_text(json.dumps(result, indent=2))
 
 
-def main() -> None:
+def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algos", nargs="+", default=["pride", "pebble"], choices=["pride", "pebble", "sac"])
     parser.add_argument("--tasks", nargs="+", default=["walker-walk"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
-    parser.add_argument("--feedback", nargs="+", type=int, default=[400], help="max_feedback values")
-    parser.add_argument("--ratios", nargs="+", type=float, default=[0.5], help="PRIDE's synthetic_ratio values")
+    parser.add_argument("--feedback", nargs="+", type=int, help="max_feedback values (default: each task's YAML value)")
+    parser.add_argument(
+        "--ratios", nargs="+", type=float, help="PRIDE's synthetic_ratio values (default: each task's YAML value)"
+    )
     parser.add_argument("--tier", default="cpu", help="'paper' or a folder under hyperparams/ (default: cpu)")
     parser.add_argument("--timesteps", type=int, default=0, help="override n_timesteps of the YAML (0: keep)")
     parser.add_argument("--eval-freq", type=int, default=5000)
@@ -170,6 +189,11 @@ def main() -> None:
     parser.add_argument("--jobs", type=int, default=1, help="runs in parallel (one process each)")
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks/results/runs")
     parser.add_argument("--worker", help=argparse.SUPPRESS)
+    return parser
+
+
+def main() -> None:
+    parser = make_parser()
     args = parser.parse_args()
     if args.set and not args.tag:
         parser.error("--set needs --tag: a variant must not share its run names with the YAML's configuration")

@@ -10,8 +10,9 @@ cd "$(dirname "$0")/.."
 OUT=${OUT:-benchmarks/results/runs}
 TASK=${TASK:-cheetah-run}
 FEEDBACK=${FEEDBACK:-400}
+RATIO=${RATIO:-0.5}  # PRIDE's u (the grids of sessions 6-8 ran 0.5; the CPU YAML now has 0.25 on cheetah and Meta-World)
 . benchmarks/faithful.sh  # FAITHFUL: the --set pairs of the "faithful" variant
-RUN="python benchmarks/run.py --tier cpu --tasks $TASK --feedback $FEEDBACK --out $OUT"
+RUN="python benchmarks/run.py --tier cpu --tasks $TASK --feedback $FEEDBACK --ratios $RATIO --out $OUT"
 # shellcheck disable=SC2086
 (
   $RUN --algos pebble --seeds 0
