@@ -150,6 +150,9 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
         for bad in (0, -5):
             with pytest.raises(ValueError, match=name):
                 PEBBLE("MlpPolicy", "Pendulum-v1", **{name: bad})
+    for bad in (0, -2, 1.5):  # SB3 would never train at 0
+        with pytest.raises(ValueError, match="gradient_steps must be a positive integer"):
+            PEBBLE("MlpPolicy", "Pendulum-v1", gradient_steps=bad)
     with pytest.raises(ValueError, match="query_selection"):
         PEBBLE("MlpPolicy", "Pendulum-v1", query_selection="random")
     with pytest.raises(ValueError, match="teacher"):
@@ -171,7 +174,8 @@ def test_a_custom_teacher_is_checked(tiny_kwargs):
 @pytest.mark.parametrize("algo", ["pebble", "pride"])
 def test_real_only_critic_diagnostics_are_logged_after_pretraining(tiny_kwargs, algo, tmp_path):
     """train/critic_loss_real and train/q_real: the critic on real-only minibatches, logged by both algorithms from
-    the first feedback session on (so PRIDE's mixed batches and PEBBLE's real ones are compared like for like)."""
+    the first feedback session on (so PRIDE's mixed batches and PEBBLE's real ones are compared like for like), and
+    train/q beside them, on minibatches drawn as SAC's updates draw them."""
     import pandas as pd
     from stable_baselines3.common.logger import configure
 
@@ -184,8 +188,24 @@ def test_real_only_critic_diagnostics_are_logged_after_pretraining(tiny_kwargs, 
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(600, log_interval=1)  # the first session at step 300
     progress = pd.read_csv(tmp_path / "progress.csv")
-    for key in ("train/critic_loss_real", "train/q_real"):
+    for key in ("train/critic_loss_real", "train/q_real", "train/q"):
         logged = progress[[key, "time/total_timesteps"]].dropna()
         assert len(logged) >= 1 and np.all(np.isfinite(logged[key]))
         assert logged["time/total_timesteps"].min() > 300  # never during pre-training, where r_int is the reward
     assert (progress["train/critic_loss_real"].dropna() >= 0).all()
+
+
+def test_critic_diagnostics_change_no_training_run(tiny_kwargs):
+    """The diagnostics draw minibatches (PRIDE's mixed ones from NumPy's global RNG, as SB3 does) from their own
+    generators: a run that logs them at every train() call trains exactly as one that never does."""
+    from sb3_pride import PRIDE
+    from tests.test_pride import TINY_DIFFUSION
+
+    def critic_after(diagnostic_interval):
+        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION)
+        model.diagnostic_interval = diagnostic_interval
+        model.learn(450)  # synthetic data from step 300
+        assert model.replay_buffer.synthetic.size() > 0
+        return th.nn.utils.parameters_to_vector(model.critic.parameters())
+
+    th.testing.assert_close(critic_after(1), critic_after(10**9), rtol=0, atol=0)

@@ -155,6 +155,32 @@ def test_bad_input_names_the_parameter():
 TINY_DYNAMICS = dict(dynamics_kwargs=dict(width=64, train_steps=200))
 
 
+def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs):
+    """The paper's argument for synthetic data, a higher update-to-data ratio: with gradient_steps=2 every env step
+    makes two SAC updates, each on its own minibatch of round(u·B) synthetic and B − round(u·B) real transitions."""
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, gradient_steps=2, **tiny_kwargs, **TINY_DIFFUSION)
+    model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
+    model.learn(350)  # synthetic data from step 300
+    buffer = model.replay_buffer
+    assert buffer.synthetic.size() > 0
+    drawn: list[tuple[str, int]] = []
+
+    def recording(part, sample):
+        def sample_and_record(n, env=None):
+            drawn.append((part, n))
+            return sample(n, env)
+
+        return sample_and_record
+
+    buffer.real.sample = recording("real", buffer.real.sample)
+    buffer.synthetic.sample = recording("synthetic", buffer.synthetic.sample)
+    updates = model._n_updates
+    model.learn(10, reset_num_timesteps=False)
+    assert model._n_updates - updates == 20  # two updates per env step
+    half = model.batch_size // 2  # u = 0.5
+    assert drawn == [("synthetic", half), ("real", half)] * 20
+
+
 def test_delayed_start_and_ramp_of_u(tiny_kwargs):
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs,
                   **{**TINY_DIFFUSION, "synthetic_start": 600, "synthetic_ramp": 300}, **TINY_DYNAMICS)  # fmt: skip

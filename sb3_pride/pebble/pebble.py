@@ -151,6 +151,8 @@ class PEBBLE(SAC):
             reward_epochs=reward_epochs,
         )
         check_non_negative_ints(unsupervised_steps=unsupervised_steps, critic_reset_updates=critic_reset_updates)
+        if gradient_steps != -1:  # SB3's -1: as many updates as env steps collected; with 0 it would never train
+            check_positive_ints(gradient_steps=gradient_steps)
         check_choice("query_selection", query_selection, QUERY_SELECTIONS)
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         if n_steps != 1:
@@ -234,7 +236,7 @@ class PEBBLE(SAC):
         self.next_feedback_step = learning_starts + unsupervised_steps
         self.preference_rng = np.random.default_rng(seed)
         self.state_entropy = StateEntropyReward(k=entropy_k)
-        #: train() calls between two real-only critic diagnostics (train/critic_loss_real, train/q_real)
+        #: train() calls between two critic diagnostics (train/critic_loss_real, train/q_real, train/q)
         self.diagnostic_interval = 100
         self._train_calls = 0
         self._warned_short_episodes = False
@@ -337,26 +339,31 @@ class PEBBLE(SAC):
         super().train(gradient_steps, batch_size)
         self._train_calls += 1
         if not self.in_pretraining and self._train_calls % self.diagnostic_interval == 0:
-            critic_loss, q_value = self.real_critic_diagnostics(batch_size)
+            critic_loss, q_value = self.critic_diagnostics(batch_size, real_only=True)
             self.logger.record_mean("train/critic_loss_real", critic_loss)
             self.logger.record_mean("train/q_real", q_value)
+            # beside SB3's train/critic_loss: Q on a minibatch drawn as SAC draws it (mixed in PRIDE, real in PEBBLE)
+            self.logger.record_mean("train/q", self.critic_diagnostics(batch_size, real_only=False)[1])
 
     @th.no_grad()
-    def real_critic_diagnostics(self, batch_size: int) -> tuple[float, float]:
+    def critic_diagnostics(self, batch_size: int, real_only: bool = True) -> tuple[float, float]:
         """
         SAC's critic loss (r̂ + γ(1 − d)(min Q_target(s', a') − α log π(a'|s'))) and the mean Q(s, a) on a minibatch
-        of real transitions only: PEBBLE's and PRIDE's critics compared like for like, whatever PRIDE mixes in.
-        Draws from its own random generators (NumPy's and torch's global states are restored), so logging it
-        changes no training run.
+        of real transitions only (``real_only``: PEBBLE's and PRIDE's critics compared like for like, whatever PRIDE
+        mixes in), or on one drawn from the replay buffer as SAC's updates draw it. Draws from its own random
+        generators (NumPy's and torch's global states are restored), so logging it changes no training run.
         """
-        buffer = self.real_buffer
-        numpy_state = np.random.get_state()  # SB3's _get_samples draws the env index from NumPy's global RNG
+        numpy_state = np.random.get_state()  # SB3's sample() and _get_samples draw from NumPy's global RNG
         # manual_seed reseeds every CUDA generator too: fork (and restore) the one this model draws from
         devices = [self.device] if self.device.type == "cuda" else []
         with th.random.fork_rng(devices=devices):
             th.manual_seed(int(self._diagnostic_rng.integers(2**62)))
-            rows = self._diagnostic_rng.integers(0, buffer.size(), size=batch_size)
-            data = buffer._get_samples(rows, env=self._vec_normalize_env)
+            np.random.seed(int(self._diagnostic_rng.integers(2**32)))
+            if real_only:
+                rows = self._diagnostic_rng.integers(0, self.real_buffer.size(), size=batch_size)
+                data = self.real_buffer._get_samples(rows, env=self._vec_normalize_env)
+            else:
+                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
             next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), dim=1, keepdim=True)[0]
             ent_coef = self.ent_coef_tensor if self.log_ent_coef is None else th.exp(self.log_ent_coef)
