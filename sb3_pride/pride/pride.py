@@ -45,8 +45,9 @@ class PRIDE(PEBBLE):
 
     Every other parameter is PEBBLE's (and SAC's), with the same defaults. PRIDE's own defaults are the best
     configuration measured (``benchmarks/results/README.md``; ``hyperparams/cpu/pride.yml``'s walker-walk entry):
-    the paper's generator (an unconditional model of [s, a, s'], 256 × 3 blocks / 2000 steps, 32 to 8 sampling
-    steps) makes next states 3.4–7.3× as inconsistent with the dynamics as real held-out ones on walker-walk;
+    the paper's generator (an unconditional model of [s, a, s'] at CPU sizes: 256 or 512 wide, 2 or 3 blocks,
+    1000 to 5000 steps, 32 to 8 sampling steps) makes next states 2.4–9.8× as inconsistent with the dynamics as real
+    held-out ones on walker-walk;
     modelling s' − s and generating near real transitions (σ = 0.25) brings that to 1.6× standalone, at a third of
     the sampling cost, and with 4000 warm-started steps per retrain it reads 1.41× at the last retrain of a CPU-tier
     run (1.54× with 2000 steps, 5 seeds each; 4000 costs ~7% more wall time). Every sample then has a real neighbour
@@ -97,9 +98,9 @@ class PRIDE(PEBBLE):
         (``diffusion/novelty_ratio``); needed by ``synthetic_filter="dynamics"``
     :param dynamics_kwargs: ``DynamicsEnsemble`` arguments (``n_members``, ``width``, ``train_steps``, ...)
 
-    The paper's recipe: ``model_state_change=False, generation="unconditional", diffusion_interval=10_000,
-    synthetic_start=0, synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0`` with its diffusion
-    sizes (``hyperparams/pride.yml``).
+    The paper's recipe: ``model_state_change=False, generation="unconditional", diffusion_warm_start=False,
+    diffusion_interval=10_000, synthetic_start=0, synthetic_ramp=0, diffusion_window=None,
+    synthetic_keep_quantile=1.0`` with its diffusion sizes (``hyperparams/pride.yml``).
     """
 
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = DualReplayBuffer  # type: ignore[assignment]
