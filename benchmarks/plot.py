@@ -268,13 +268,31 @@ def summary(groups) -> str:
     return "\n".join(lines) + "\n"
 
 
+def compare(groups, pairs: list[list[str]], parser: argparse.ArgumentParser) -> None:
+    """P(X > Y) on the final true return (rliable, as in summary.md) for pairs that the summary does not make."""
+    from rliable import metrics
+
+    for task, *names in pairs:
+        for name in names:
+            if (task, name) not in groups:
+                known = sorted(n for t, n in groups if t == task)
+                parser.error(f"--compare: no runs of {name!r} on {task!r}; configurations there: {known}")
+    scores = {f"{task}: {x} > {y}": [final_returns(groups[(task, name)])[:, None] for name in (x, y)] for task, x, y in pairs}
+    point, intervals = bootstrap(scores, metrics.probability_of_improvement)
+    for key, (x, y) in scores.items():
+        low, high = (float(np.ravel(bound)[0]) for bound in intervals[key])
+        print(f"| {key} | {len(x)} vs {len(y)} | {float(np.ravel(point[key])[0]):.2f} | [{low:.2f}, {high:.2f}] |")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--runs", type=Path, nargs="+", default=[Path("benchmarks/results/runs")],
                         help="folders of runs, pooled (e.g. runs/ and a folder of extra seeds)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/figures"))
+    parser.add_argument("--compare", nargs=3, action="append", metavar=("TASK", "X", "Y"),
+                        help="print P(X > Y) for these two configurations (labels as in summary.md) and nothing "
+                             "else; may be repeated")  # fmt: skip
     args = parser.parse_args()
-    args.out.mkdir(parents=True, exist_ok=True)
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for folder in args.runs:
         for key, runs in load_runs(folder).items():
@@ -282,6 +300,10 @@ def main() -> None:
             if seeds:
                 parser.error(f"--runs: {key[0]} {key[1]} has seeds {sorted(seeds)} in {folder} and in an earlier folder")
             groups[key].extend(runs)
+    if args.compare:
+        compare(groups, args.compare, parser)
+        return
+    args.out.mkdir(parents=True, exist_ok=True)
     for task in sorted({task for task, _ in groups}):
         plot_curves(groups, task, lambda s: s["algo"] != "pride" or s["ratio"] == 0.5, "true_return", "true return",
                     f"{task} (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
