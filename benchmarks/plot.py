@@ -166,7 +166,6 @@ def improvements(groups) -> dict:
     variant against "faithful" PRIDE at the same u and budget (the ablation), each tagged
     PEBBLE variant against plain PEBBLE at its budget, and plain PEBBLE at a smaller budget against the largest. Pairs where either side has fewer than two seeds are left out.
     """
-    from rliable import metrics
 
     pairs = {}
     for (task, name), runs in groups.items():
@@ -200,11 +199,23 @@ def improvements(groups) -> dict:
                 pairs[f"{task}: {name} > {rival_name}"] = [
                     final_returns(group)[:, None] for group in (runs, rival)
                 ]  # (runs, 1 task)
+    return probabilities_of_improvement(pairs)
+
+
+def probabilities_of_improvement(pairs: dict) -> dict:
+    """{"X > Y": [X's final returns, Y's]} -> rliable's P(X > Y), its 95% interval and the seeds of each side."""
+    from rliable import metrics
+
     if not pairs:
         return {}
     point, intervals = bootstrap(pairs, metrics.probability_of_improvement)
     return {key: {"p": float(np.ravel(point[key])[0]), "ci95": [float(np.ravel(bound)[0]) for bound in intervals[key]],
                   "seeds": [len(pairs[key][0]), len(pairs[key][1])]} for key in sorted(pairs)}  # fmt: skip
+
+
+def improvement_row(key: str, value: dict) -> str:
+    low, high = value["ci95"]
+    return f"| {key} | {value['seeds'][0]} vs {value['seeds'][1]} | {value['p']:.2f} | [{low:.2f}, {high:.2f}] |"
 
 
 def diagnostics(runs: list[dict]) -> dict[str, float]:
@@ -246,9 +257,7 @@ def summary(groups) -> str:
         )
     lines += ["", "Probability of improvement (final true return, rliable, 95% bootstrap CI):", "",
               "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
-    for key, value in improvements(groups).items():
-        low, high = value["ci95"]
-        lines.append(f"| {key} | {value['seeds'][0]} vs {value['seeds'][1]} | {value['p']:.2f} | [{low:.2f}, {high:.2f}] |")
+    lines += [improvement_row(key, value) for key, value in improvements(groups).items()]
     lines += ["", "At the end of training (means over the runs that have progress.csv):", "",
               "| task | configuration | runs | corr(r̂, r) | critic loss | critic loss, real batch | Q, real batch | −actor loss (≈ Q) "
               "| dynamics error ratio (all retrains) | kept after filter | held-out anchors | novelty "
@@ -270,18 +279,14 @@ def summary(groups) -> str:
 
 def compare(groups, pairs: list[list[str]], parser: argparse.ArgumentParser) -> None:
     """P(X > Y) on the final true return (rliable, as in summary.md) for pairs that the summary does not make."""
-    from rliable import metrics
-
     for task, *names in pairs:
         for name in names:
             if (task, name) not in groups:
                 known = sorted(n for t, n in groups if t == task)
                 parser.error(f"--compare: no runs of {name!r} on {task!r}; configurations there: {known}")
     scores = {f"{task}: {x} > {y}": [final_returns(groups[(task, name)])[:, None] for name in (x, y)] for task, x, y in pairs}
-    point, intervals = bootstrap(scores, metrics.probability_of_improvement)
-    for key, (x, y) in scores.items():
-        low, high = (float(np.ravel(bound)[0]) for bound in intervals[key])
-        print(f"| {key} | {len(x)} vs {len(y)} | {float(np.ravel(point[key])[0]):.2f} | [{low:.2f}, {high:.2f}] |")
+    for key, value in probabilities_of_improvement(scores).items():
+        print(improvement_row(key, value))
 
 
 def main() -> None:
