@@ -155,14 +155,8 @@ def test_bad_input_names_the_parameter():
 TINY_DYNAMICS = dict(dynamics_kwargs=dict(width=64, train_steps=200))
 
 
-def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs):
-    """The paper's argument for synthetic data, a higher update-to-data ratio: with gradient_steps=2 every env step
-    makes two SAC updates, each on its own minibatch of round(u·B) synthetic and B − round(u·B) real transitions."""
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, gradient_steps=2, **tiny_kwargs, **TINY_DIFFUSION)
-    model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
-    model.learn(350)  # synthetic data from step 300
-    buffer = model.replay_buffer
-    assert buffer.synthetic.size() > 0
+def record_draws(buffer: DualReplayBuffer) -> list[tuple[str, int]]:
+    """Record (part, rows) of every draw from the buffer's real and synthetic parts from now on."""
     drawn: list[tuple[str, int]] = []
 
     def recording(part, sample):
@@ -174,11 +168,54 @@ def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs):
 
     buffer.real.sample = recording("real", buffer.real.sample)
     buffer.synthetic.sample = recording("synthetic", buffer.synthetic.sample)
+    return drawn
+
+
+def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs):
+    """The paper's argument for synthetic data, a higher update-to-data ratio: with gradient_steps=2 every env step
+    makes two SAC updates, each on its own minibatch of round(u·B) synthetic and B − round(u·B) real transitions."""
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, gradient_steps=2, **tiny_kwargs, **TINY_DIFFUSION)
+    model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
+    model.learn(350)  # synthetic data from step 300
+    assert model.replay_buffer.synthetic.size() > 0
+    drawn = record_draws(model.replay_buffer)
     updates = model._n_updates
     model.learn(10, reset_num_timesteps=False)
     assert model._n_updates - updates == 20  # two updates per env step
     half = model.batch_size // 2  # u = 0.5
     assert drawn == [("synthetic", half), ("real", half)] * 20
+
+
+@pytest.mark.parametrize(("ratio", "n_synthetic"), [(0.5, 64), (0.25, 21)])
+def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synthetic):
+    """With synthetic_on_top the synthetic rows come on top of batch_size real ones (B = 64 here), as many real rows
+    as PEBBLE's updates see at the same batch_size; without it they take the place of real ones."""
+    kwargs = dict(synthetic_ratio=ratio, **tiny_kwargs, **TINY_DIFFUSION)
+    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_on_top=True, **kwargs)
+    on_top.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
+    on_top.learn(350)  # synthetic data from step 300
+    drawn = record_draws(on_top.replay_buffer)
+    on_top.learn(5, reset_num_timesteps=False)
+    assert drawn == [("synthetic", n_synthetic), ("real", 64)] * 5
+    assert on_top.minibatch_size(64) == 64 + n_synthetic and on_top.batch_size == 64  # what the user set stays
+
+    replacing = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs)
+    replacing.diagnostic_interval = 10**9
+    replacing.learn(350)
+    drawn = record_draws(replacing.replay_buffer)
+    replacing.learn(5, reset_num_timesteps=False)
+    assert drawn == [("synthetic", round(ratio * 64)), ("real", 64 - round(ratio * 64))] * 5
+
+
+def test_synthetic_on_top_is_the_paper_mixing_at_batch_size_over_one_minus_u(tiny_kwargs):
+    """Before the first generation the extra rows are real, so synthetic_on_top at batch_size B trains exactly as the
+    paper's mixing at batch_size B / (1 − u), critic reset and diagnostics included (bit-identical weights)."""
+    kwargs = {**tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS, "synthetic_ramp": 100}
+    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 32}, synthetic_on_top=True).learn(450)
+    larger = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 64}).learn(450)
+    assert on_top.replay_buffer.synthetic.size() > 0 and on_top.diffusion_retrains == larger.diffusion_retrains == 1
+    for p, q in zip(on_top.policy.parameters(), larger.policy.parameters(), strict=True):
+        assert th.equal(p, q)
 
 
 def test_delayed_start_and_ramp_of_u(tiny_kwargs):
@@ -276,6 +313,7 @@ def test_bad_mixing_input_names_the_parameter():
         diffusion_window=0,
         synthetic_keep_quantile=0.0,
         synthetic_filter="value",
+        synthetic_on_top="yes",
     )
     for name, value in bad.items():
         with pytest.raises(ValueError, match=name):
@@ -288,3 +326,5 @@ def test_bad_mixing_input_names_the_parameter():
         PRIDE("MlpPolicy", "Pendulum-v1", dynamics_kwargs=dict(depth=3))
     with pytest.raises(ValueError, match="fidelity_check"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=0.5, fidelity_check=False)
+    with pytest.raises(ValueError, match="synthetic_on_top=True needs synthetic_ratio < 1"):
+        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=True)

@@ -155,6 +155,11 @@ PRIDE_INVALID = [
         "synthetic_keep_quantile must be in (0, 1]",
     ),
     Invalid("synthetic_filter", not_one_of(SYNTHETIC_FILTERS), f"synthetic_filter must be one of {SYNTHETIC_FILTERS}"),
+    Invalid(
+        "synthetic_on_top",
+        st.one_of(st.integers(), st.floats(), st.text(max_size=4), st.none()),
+        "synthetic_on_top must be True or False",
+    ),
 ]
 INVALID = [
     pytest.param(algo, case, id=f"{algo.__name__}-{case.id}")

@@ -36,7 +36,8 @@ class PRIDE(PEBBLE):
     PEBBLE plus a diffusion model (Algorithm 1, lines 22–37): every ``diffusion_interval`` (R) env steps, once the
     first reward model exists, an EDM diffusion model (as SynthER) is fitted on the real transitions (s, a, s')
     and generates ``synthetic_samples`` new ones into a separate synthetic buffer; every SAC minibatch is then
-    ``round(synthetic_ratio · batch_size)`` synthetic transitions and the rest real ones.
+    ``round(synthetic_ratio · batch_size)`` synthetic transitions and the rest real ones (or, with
+    ``synthetic_on_top``, ``batch_size`` real ones and synthetic ones on top, in the same share).
 
     Synthetic rewards are r̂(s, a) of the current reward model: set at generation and relabeled together with the
     real buffer after every reward update. (The paper relabels the real buffer only, which leaves synthetic
@@ -61,6 +62,13 @@ class PRIDE(PEBBLE):
 
     :param synthetic_ratio: u, the synthetic share of each SAC minibatch, in [0, 1] (paper: 0.5). With 0 the
         diffusion model is never trained and PRIDE trains exactly as PEBBLE
+    :param synthetic_on_top: add the synthetic rows to ``batch_size`` real ones instead of putting them in place of
+        some (paper: False, a minibatch of B rows of which round(u · B) synthetic). Each minibatch then holds
+        round(B / (1 − u)) rows, the share u of them synthetic once u is reached: B real rows, as many as PEBBLE's
+        at the same ``batch_size``, plus round(u · B / (1 − u)) synthetic ones (B at u = 0.5). Rows not yet
+        synthetic (before the first generation, during the ramp of u) are real, so it is exactly the paper's mixing
+        at ``batch_size`` B / (1 − u). At UTD 1, with the paper's mixing, synthetic rows can only displace real ones.
+        Needs u < 1
     :param diffusion_interval: R, env steps between diffusion retrain-and-generate (paper: 10k)
     :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
@@ -111,6 +119,7 @@ class PRIDE(PEBBLE):
         policy: str | type[SACPolicy],
         env: GymEnv | str,
         synthetic_ratio: float = 0.5,
+        synthetic_on_top: bool = False,
         diffusion_interval: int = 5000,
         synthetic_samples: int = 10_000,
         synthetic_buffer_size: int | None = None,
@@ -136,6 +145,13 @@ class PRIDE(PEBBLE):
         **pebble_kwargs: Any,
     ):
         check_real("synthetic_ratio", synthetic_ratio, lambda u: 0.0 <= u <= 1.0, "in [0, 1]")
+        if not isinstance(synthetic_on_top, (bool, np.bool_)):
+            raise ValueError(f"synthetic_on_top must be True or False, got {synthetic_on_top!r}")
+        if synthetic_on_top and synthetic_ratio == 1.0:
+            raise ValueError(
+                "synthetic_on_top=True needs synthetic_ratio < 1 (each minibatch holds batch_size / (1 - u) rows, "
+                "batch_size of them real), got synthetic_ratio=1.0"
+            )
         check_positive_ints(
             diffusion_interval=diffusion_interval,
             synthetic_samples=synthetic_samples,
@@ -192,6 +208,7 @@ class PRIDE(PEBBLE):
         if _init_setup_model and self.env is not None:  # PEBBLE skipped it, as it does for load()
             self._check_episode_length(self.env, self.segment_length)
         self.synthetic_ratio = synthetic_ratio
+        self.synthetic_on_top = bool(synthetic_on_top)
         self.diffusion_interval = diffusion_interval
         self.synthetic_samples = synthetic_samples
         self.synthetic_buffer_size = synthetic_buffer_size
@@ -245,12 +262,20 @@ class PRIDE(PEBBLE):
         return [*super()._preference_callbacks(), DiffusionCallback(verbose=self.verbose)]
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        # Algorithm 1, lines 34–37: each SAC minibatch holds round(u·B) synthetic and B − round(u·B) real
+        # Algorithm 1, lines 34–37: each SAC minibatch of M rows holds round(u·M) synthetic and M − round(u·M) real
         # transitions (DualReplayBuffer.sample); real only until the first generation, then u ramps up over
-        # synthetic_ramp steps
+        # synthetic_ramp steps. M = B (the paper) or, with synthetic_on_top, B / (1 − u)
         self.replay_buffer.synthetic_ratio = self.current_synthetic_ratio()
-        super().train(gradient_steps, batch_size)
-        self.logger.record("train/synthetic_per_batch", self.replay_buffer.n_synthetic(batch_size))
+        minibatch_size = self.minibatch_size(batch_size)
+        super().train(gradient_steps, minibatch_size)  # PEBBLE's critic diagnostics too see minibatches of M rows
+        self.logger.record("train/synthetic_per_batch", self.replay_buffer.n_synthetic(minibatch_size))
+
+    def minibatch_size(self, batch_size: int) -> int:
+        """
+        Rows M of each SAC minibatch: ``batch_size`` (B, the paper), or with ``synthetic_on_top`` round(B / (1 − u)),
+        which at full u is B real rows, as many as PEBBLE's, plus round(u · B / (1 − u)) synthetic ones on top.
+        """
+        return round(batch_size / (1.0 - self.synthetic_ratio)) if self.synthetic_on_top else batch_size
 
     def current_synthetic_ratio(self) -> float:
         """u now: ``synthetic_ratio``, ramped linearly from 0 over ``synthetic_ramp`` steps after the first generation."""
