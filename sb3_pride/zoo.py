@@ -82,6 +82,8 @@ def sample_pride_params(trial: Any, n_actions: int, n_envs: int, additional_args
     return {
         **sample_pebble_params(trial, n_actions, n_envs, additional_args),
         "synthetic_ratio": trial.suggest_float("synthetic_ratio", 0.1, 0.9),
+        # on top of batch_size real rows, a minibatch holds batch_size / (1 - u) rows
+        "synthetic_on_top": trial.suggest_categorical("synthetic_on_top", [False, True]),
         "diffusion_interval": trial.suggest_categorical("diffusion_interval", [2000, 5000, 10_000, 20_000]),
         "diffusion_train_steps": trial.suggest_categorical("diffusion_train_steps", [500, 1000, 2000, 5000]),
         "synthetic_samples": trial.suggest_categorical("synthetic_samples", [5000, 20_000, 100_000]),

@@ -209,7 +209,7 @@ def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synth
 
 def test_synthetic_on_top_is_the_paper_mixing_at_batch_size_over_one_minus_u(tiny_kwargs):
     """Before the first generation the extra rows are real, so synthetic_on_top at batch_size B trains exactly as the
-    paper's mixing at batch_size B / (1 − u), critic reset and diagnostics included (bit-identical weights)."""
+    paper's mixing at batch_size B / (1 − u), the critic reset included (bit-identical weights)."""
     kwargs = {**tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS, "synthetic_ramp": 100}
     on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 32}, synthetic_on_top=True).learn(450)
     larger = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 64}).learn(450)

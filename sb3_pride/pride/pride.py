@@ -37,7 +37,7 @@ class PRIDE(PEBBLE):
     first reward model exists, an EDM diffusion model (as SynthER) is fitted on the real transitions (s, a, s')
     and generates ``synthetic_samples`` new ones into a separate synthetic buffer; every SAC minibatch is then
     ``round(synthetic_ratio · batch_size)`` synthetic transitions and the rest real ones (or, with
-    ``synthetic_on_top``, ``batch_size`` real ones and synthetic ones on top, in the same share).
+    ``synthetic_on_top``, once u is reached, ``batch_size`` real ones and synthetic ones on top, in the same share).
 
     Synthetic rewards are r̂(s, a) of the current reward model: set at generation and relabeled together with the
     real buffer after every reward update. (The paper relabels the real buffer only, which leaves synthetic
@@ -63,12 +63,12 @@ class PRIDE(PEBBLE):
     :param synthetic_ratio: u, the synthetic share of each SAC minibatch, in [0, 1] (paper: 0.5). With 0 the
         diffusion model is never trained and PRIDE trains exactly as PEBBLE
     :param synthetic_on_top: add the synthetic rows to ``batch_size`` real ones instead of putting them in place of
-        some (paper: False, a minibatch of B rows of which round(u · B) synthetic). Each minibatch then holds
-        round(B / (1 − u)) rows, the share u of them synthetic once u is reached: B real rows, as many as PEBBLE's
-        at the same ``batch_size``, plus round(u · B / (1 − u)) synthetic ones (B at u = 0.5). Rows not yet
-        synthetic (before the first generation, during the ramp of u) are real, so it is exactly the paper's mixing
-        at ``batch_size`` B / (1 − u). At UTD 1, with the paper's mixing, synthetic rows can only displace real ones.
-        Needs u < 1
+        some (paper: False, a minibatch of B rows of which round(u · B) synthetic, so that each update sees fewer real
+        rows than PEBBLE's at the same ``batch_size``). Each minibatch then holds M = round(B / (1 − u)) rows of which
+        round(u · M) synthetic: once u is reached that is B real rows, as many as PEBBLE's, and about u · B / (1 − u)
+        synthetic ones on top (B at u = 0.5, B / 3 at u = 0.25). Rows not yet synthetic (before the first generation,
+        during the ramp of u) are real, so it is exactly the paper's mixing at ``batch_size`` B / (1 − u). Needs
+        u < 1; the cost of an update grows with M (10 B at u = 0.9)
     :param diffusion_interval: R, env steps between diffusion retrain-and-generate (paper: 10k)
     :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
