@@ -8,7 +8,9 @@ from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
 
 #: a diffusion model small enough for tests
 # the paper's mixing (PRIDE()'s defaults delay it to step 10k): synthetic data from the first reward model on
-PAPER_MIXING = dict(synthetic_start=0, synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0)
+PAPER_MIXING = dict(
+    synthetic_on_top=False, synthetic_start=0, synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0
+)
 TINY_DIFFUSION = dict(
     **PAPER_MIXING,
     diffusion_interval=300,
@@ -191,7 +193,7 @@ def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synth
     """With synthetic_on_top the synthetic rows come on top of batch_size real ones (B = 64 here), as many real rows
     as PEBBLE's updates see at the same batch_size; without it they take the place of real ones."""
     kwargs = dict(synthetic_ratio=ratio, **tiny_kwargs, **TINY_DIFFUSION)
-    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_on_top=True, **kwargs)
+    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **{**kwargs, "synthetic_on_top": True})
     on_top.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
     on_top.learn(350)  # synthetic data from step 300
     drawn = record_draws(on_top.replay_buffer)
@@ -211,7 +213,7 @@ def test_synthetic_on_top_is_the_paper_mixing_at_batch_size_over_one_minus_u(tin
     """Before the first generation the extra rows are real, so synthetic_on_top at batch_size B trains exactly as the
     paper's mixing at batch_size B / (1 − u), the critic reset included (bit-identical weights)."""
     kwargs = {**tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS, "synthetic_ramp": 100}
-    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 32}, synthetic_on_top=True).learn(450)
+    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 32, "synthetic_on_top": True}).learn(450)
     larger = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 64}).learn(450)
     assert on_top.replay_buffer.synthetic.size() > 0 and on_top.diffusion_retrains == larger.diffusion_retrains == 1
     for p, q in zip(on_top.policy.parameters(), larger.policy.parameters(), strict=True):

@@ -79,6 +79,7 @@ def test_pride_defaults_are_the_best_measured_cpu_configuration():
     for entry in entries("pride.yml").values():
         assert (entry["synthetic_start"], entry["synthetic_ramp"], entry["diffusion_window"]) == (0, 0, None)
         assert entry["synthetic_keep_quantile"] == 1.0 and entry["generation"] == "unconditional"
+        assert entry["synthetic_on_top"] is False
 
 
 @pytest.mark.parametrize("name", FILES)

@@ -107,7 +107,7 @@ class PRIDE(PEBBLE):
     :param dynamics_kwargs: ``DynamicsEnsemble`` arguments (``n_members``, ``width``, ``train_steps``, ...)
 
     The paper's recipe: ``model_state_change=False, generation="unconditional", diffusion_warm_start=False,
-    diffusion_interval=10_000, synthetic_start=0, synthetic_ramp=0, diffusion_window=None,
+    synthetic_on_top=False, diffusion_interval=10_000, synthetic_start=0, synthetic_ramp=0, diffusion_window=None,
     synthetic_keep_quantile=1.0`` with its diffusion sizes (``hyperparams/pride.yml``).
     """
 
