@@ -9,5 +9,8 @@ OUT=${OUT:-benchmarks/results/runs}
 for seed in ${SEEDS:-0 1 2 3 4}; do
   python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride pebble --feedback 400 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
   python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 200 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
-  python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 400 --ratios 0.3 1.0 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
+  python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 400 --ratios 0.3 --seeds "$seed" --jobs "$JOBS" --out "$OUT"
+  # u = 1.0 (every row synthetic) exists only with the synthetic rows in place of real ones
+  python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride --feedback 400 --ratios 1.0 --seeds "$seed" --jobs "$JOBS" \
+    --out "$OUT" --tag in_place --set synthetic_on_top=false
 done

@@ -330,3 +330,4 @@ def test_bad_mixing_input_names_the_parameter():
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=0.5, fidelity_check=False)
     with pytest.raises(ValueError, match="synthetic_on_top=True needs synthetic_ratio < 1"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=True)
+    PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=False)  # every row synthetic: in place

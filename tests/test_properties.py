@@ -176,7 +176,7 @@ VALID = [
     (PEBBLE, "critic_reset_updates", st.one_of(st.integers(0, 10**6), numpy_ints(0, 10**6))),
     (PEBBLE, "query_selection", st.sampled_from(QUERY_SELECTIONS)),
     (PEBBLE, "reward_learning_rate", st.floats(min_value=0.0, max_value=1e3, exclude_min=True)),
-    (PRIDE, "synthetic_ratio", st.floats(0.0, 1.0)),
+    (PRIDE, "synthetic_ratio", st.floats(0.0, 1.0, exclude_max=True)),
     (PRIDE, "diffusion_interval", st.integers(1, 10**12)),
     (PRIDE, "synthetic_buffer_size", st.one_of(st.none(), st.integers(1, 1000))),
     (PRIDE, "diffusion_window", st.one_of(st.none(), st.integers(1, 10**12))),

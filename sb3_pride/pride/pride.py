@@ -119,7 +119,7 @@ class PRIDE(PEBBLE):
         policy: str | type[SACPolicy],
         env: GymEnv | str,
         synthetic_ratio: float = 0.5,
-        synthetic_on_top: bool = False,
+        synthetic_on_top: bool = True,
         diffusion_interval: int = 5000,
         synthetic_samples: int = 10_000,
         synthetic_buffer_size: int | None = None,
@@ -150,7 +150,8 @@ class PRIDE(PEBBLE):
         if synthetic_on_top and synthetic_ratio == 1.0:
             raise ValueError(
                 "synthetic_on_top=True needs synthetic_ratio < 1 (each minibatch holds batch_size / (1 - u) rows, "
-                "batch_size of them real), got synthetic_ratio=1.0"
+                "batch_size of them real), got synthetic_ratio=1.0; for minibatches of synthetic rows only, set "
+                "synthetic_on_top=False"
             )
         check_positive_ints(
             diffusion_interval=diffusion_interval,
