@@ -276,7 +276,7 @@ class PRIDE(PEBBLE):
     def minibatch_size(self, batch_size: int) -> int:
         """
         Rows M of each SAC minibatch: ``batch_size`` (B, the paper), or with ``synthetic_on_top`` round(B / (1 − u)),
-        which at full u is B real rows, as many as PEBBLE's, plus round(u · B / (1 − u)) synthetic ones on top.
+        which at full u is B real rows, as many as PEBBLE's, plus M − B (about u · B / (1 − u)) synthetic ones on top.
         """
         return round(batch_size / (1.0 - self.synthetic_ratio)) if self.synthetic_on_top else batch_size
 
