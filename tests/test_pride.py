@@ -85,7 +85,9 @@ def test_short_run_on_dm_control_with_two_envs(tiny_kwargs, tmp_path):
     np.testing.assert_array_equal(loaded.replay_buffer.synthetic.observations, synthetic.observations)
     np.testing.assert_array_equal(loaded.replay_buffer.real.true_rewards, buffer.real.true_rewards)
     loaded.learn(200, reset_num_timesteps=False)
-    assert loaded.diffusion_retrains == 4
+    assert loaded.diffusion_retrains == 3  # the retrain due at step 1200, the last of this learn(), waits for the next
+    loaded.learn(2, reset_num_timesteps=False)
+    assert loaded.diffusion_retrains == 4 and loaded.next_diffusion_step == 1502
 
 
 def test_synthetic_rewards_follow_each_relabel(tiny_kwargs):
@@ -209,15 +211,29 @@ def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synth
     assert drawn == [("synthetic", round(ratio * 64)), ("real", 64 - round(ratio * 64))] * 5
 
 
-def test_synthetic_on_top_is_the_paper_mixing_at_batch_size_over_one_minus_u(tiny_kwargs):
-    """Before the first generation the extra rows are real, so synthetic_on_top at batch_size B trains exactly as the
-    paper's mixing at batch_size B / (1 − u), the critic reset included (bit-identical weights)."""
-    kwargs = {**tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS, "synthetic_ramp": 100}
-    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 32, "synthetic_on_top": True}).learn(450)
-    larger = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**kwargs, "batch_size": 64}).learn(450)
-    assert on_top.replay_buffer.synthetic.size() > 0 and on_top.diffusion_retrains == larger.diffusion_retrains == 1
-    for p, q in zip(on_top.policy.parameters(), larger.policy.parameters(), strict=True):
+def test_synthetic_on_top_trains_as_pebble_until_the_first_generation(tiny_kwargs):
+    """With synthetic_on_top every minibatch holds batch_size real rows: until the first generation (step 300 here)
+    PRIDE trains exactly as PEBBLE (bit-identical weights), not on a larger minibatch of real rows."""
+    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, **tiny_kwargs).learn(299)
+    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**tiny_kwargs, **TINY_DIFFUSION, "synthetic_on_top": True})
+    on_top.learn(299)
+    assert on_top.replay_buffer.synthetic.size() == 0 and on_top.minibatch_size(64) == 64
+    for p, q in zip(pebble.policy.parameters(), on_top.policy.parameters(), strict=True):
         assert th.equal(p, q)
+
+
+def test_synthetic_on_top_rows_grow_with_the_ramp_of_u(tiny_kwargs):
+    """While u ramps up, the synthetic rows on top grow from 0 to B·u/(1 − u) and the real rows stay batch_size."""
+    kwargs = {**tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS, "synthetic_ramp": 100, "synthetic_on_top": True}
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs)
+    model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
+    drawn = record_draws(model.replay_buffer)
+    model.learn(450)  # the first generation at step 300, u = 0.5 from step 400
+    assert model.first_generation_step == 300
+    assert {rows for part, rows in drawn if part == "real"} == {64}
+    synthetic = [rows for part, rows in drawn if part == "synthetic"]
+    assert synthetic == sorted(synthetic) and synthetic[0] <= 1 and synthetic[-1] == 64
+    assert len(synthetic) == 450 - 301  # none before the first generation; at steps 300 and 301 round(u·M) is 0
 
 
 def test_delayed_start_and_ramp_of_u(tiny_kwargs):

@@ -67,10 +67,11 @@ class PRIDE(PEBBLE):
     :param synthetic_on_top: add the synthetic rows to ``batch_size`` real ones instead of putting them in place of
         some (paper: False, a minibatch of B rows of which round(u · B) synthetic, so that each update sees fewer real
         rows than PEBBLE's at the same ``batch_size``). Each minibatch then holds M = round(B / (1 − u)) rows of which
-        round(u · M) synthetic: once u is reached that is B real rows, as many as PEBBLE's, and about u · B / (1 − u)
-        synthetic ones on top (B at u = 0.5, B / 3 at u = 0.25). Rows not yet synthetic (before the first generation,
-        during the ramp of u) are real, so it is exactly the paper's mixing at ``batch_size`` B / (1 − u). Needs
-        u < 1; the cost of an update grows with M (10 B at u = 0.9)
+        round(u · M) synthetic, u as ramped so far: B real rows, as many as PEBBLE's, and about u · B / (1 − u)
+        synthetic ones on top (B at u = 0.5, B / 3 at u = 0.25). Until the first generation it trains exactly as PEBBLE
+        (M = B). Needs u < 1; the cost of an update grows with M (10 B at u = 0.9). (Session 16's variant, M = B / (1 − u)
+        from the start with real rows where there are no synthetic ones yet, is the paper's mixing at ``batch_size``
+        B / (1 − u).)
     :param diffusion_interval: R, env steps between diffusion retrain-and-generate (paper: 10k)
     :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
@@ -267,7 +268,7 @@ class PRIDE(PEBBLE):
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         # Algorithm 1, lines 34–37: each SAC minibatch of M rows holds round(u·M) synthetic and M − round(u·M) real
         # transitions (DualReplayBuffer.sample); real only until the first generation, then u ramps up over
-        # synthetic_ramp steps. M = B (the paper) or, with synthetic_on_top, B / (1 − u)
+        # synthetic_ramp steps. M = B (the paper) or, with synthetic_on_top, B / (1 − u) with u as ramped so far
         self.replay_buffer.synthetic_ratio = self.current_synthetic_ratio()
         minibatch_size = self.minibatch_size(batch_size)
         super().train(gradient_steps, minibatch_size)  # PEBBLE's critic diagnostics too see minibatches of M rows
@@ -275,10 +276,13 @@ class PRIDE(PEBBLE):
 
     def minibatch_size(self, batch_size: int) -> int:
         """
-        Rows M of each SAC minibatch: ``batch_size`` (B, the paper), or with ``synthetic_on_top`` round(B / (1 − u)),
-        which at full u is B real rows, as many as PEBBLE's, plus M − B (about u · B / (1 − u)) synthetic ones on top.
+        Rows M of each SAC minibatch: ``batch_size`` (B, the paper), or with ``synthetic_on_top`` round(B / (1 − u))
+        for u as ramped so far: B real rows, as many as PEBBLE's, plus M − B (about u · B / (1 − u)) synthetic ones on
+        top; M = B while there is no synthetic data yet.
         """
-        return round(batch_size / (1.0 - self.synthetic_ratio)) if self.synthetic_on_top else batch_size
+        if not self.synthetic_on_top or self.replay_buffer.synthetic.size() == 0:
+            return batch_size
+        return round(batch_size / (1.0 - self.current_synthetic_ratio()))
 
     def current_synthetic_ratio(self) -> float:
         """u now: ``synthetic_ratio``, ramped linearly from 0 over ``synthetic_ramp`` steps after the first generation."""
