@@ -15,6 +15,7 @@ fidelity and timings, SAC losses).
 """
 
 import argparse
+import inspect
 import itertools
 import json
 import os
@@ -58,6 +59,37 @@ def parse_overrides(pairs: list[str]) -> dict[str, Any]:
     return overrides
 
 
+def algorithm_class(algo: str) -> type:
+    from stable_baselines3 import SAC
+
+    import sb3_pride
+
+    return {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
+
+
+def constructor_arguments(algo: str) -> set[str]:
+    """The keyword arguments the algorithm's constructor takes: its own and, through ``**kwargs``, its parents'."""
+    names: set[str] = set()
+    for cls in algorithm_class(algo).__mro__:
+        if "__init__" not in vars(cls):
+            continue
+        parameters = inspect.signature(cls.__init__).parameters.values()
+        names |= {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        if not any(p.kind == p.VAR_KEYWORD for p in parameters):
+            break
+    return names - {"self"}
+
+
+def check_overrides(overrides: dict[str, Any], algos: list[str]) -> None:
+    """Fail before any run starts if an algorithm of the grid does not take a --set key (e.g. PEBBLE and u)."""
+    for algo in algos:
+        unknown = sorted(set(overrides) - constructor_arguments(algo))
+        if unknown:
+            takers = [other for other in algos if not set(unknown) - constructor_arguments(other)]
+            hint = f"; run --algos {' '.join(takers)} on its own" if takers else ""
+            raise SystemExit(f"--set {', '.join(unknown)}: not an argument of {algo.upper()}{hint}")
+
+
 def yaml_entry(tier: str, algo: str, task: str) -> tuple[int, dict[str, Any]]:
     """``(n_timesteps, constructor kwargs)`` of the task's entry in ``hyperparams/<tier>/<algo>.yml``."""
     from sb3_pride.zoo import hyperparams_dir, model_kwargs
@@ -73,6 +105,8 @@ def yaml_entry(tier: str, algo: str, task: str) -> tuple[int, dict[str, Any]]:
 
 def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     specs, seen = [], set()
+    overrides = parse_overrides(args.set)
+    check_overrides(overrides, args.algos)
     # seeds outermost: every cell gets its first seed before any gets its second
     for seed, task, algo in itertools.product(args.seeds, args.tasks, args.algos):
         _, kwargs = yaml_entry(args.tier, algo, task)
@@ -82,7 +116,7 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
         for feedback, ratio in itertools.product(feedbacks, ratios):
             spec = dict(algo=algo, task=task, seed=seed, feedback=feedback, ratio=ratio, tier=args.tier,
                         eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps,
-                        tag=args.tag, overrides=parse_overrides(args.set))  # fmt: skip
+                        tag=args.tag, overrides=overrides)  # fmt: skip
             if run_name(spec) not in seen:  # SAC ignores feedback and ratio; PEBBLE ignores ratio
                 seen.add(run_name(spec))
                 specs.append(spec)
@@ -122,12 +156,9 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     """One run, in this process."""
     import numpy as np
     import torch as th
-    from stable_baselines3 import SAC
     from stable_baselines3.common.callbacks import EvalCallback
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.logger import configure
-
-    import sb3_pride
 
     th.set_num_threads(1)
     n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
@@ -137,7 +168,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         kwargs["synthetic_ratio"] = spec["ratio"]
     kwargs.update(spec.get("overrides") or {})
     n_timesteps = spec["timesteps"] or n_timesteps
-    algo = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[spec["algo"]]
+    algo = algorithm_class(spec["algo"])
     env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
     eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
     model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **kwargs)
@@ -183,7 +214,7 @@ def make_parser() -> argparse.ArgumentParser:
         nargs="*",
         default=[],
         metavar="KEY=VALUE",
-        help="override any constructor argument of the YAML, e.g. gradient_steps=2 (applied to every algo)",
+        help="override any constructor argument of the YAML, e.g. gradient_steps=2 (applied to every algo; each must take it)",
     )
     parser.add_argument("--tag", default="", help="suffix of the run names: tells variants made with --set apart")
     parser.add_argument("--jobs", type=int, default=1, help="runs in parallel (one process each)")

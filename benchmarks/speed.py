@@ -3,7 +3,9 @@ Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identica
 
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
 
-PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults). The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
+PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
+feedback budget for the shorter run; ``--as-tier`` runs the tier's own run instead (50k steps on walker-walk, the
+YAML unchanged), and ``--algos pebble`` and ``--algos pride`` can then run side by side, one per core. The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
 gives each one's median time, its ratio to SAC's and to PEBBLE's, and where the extra time goes: feedback
 sessions (reward learning, relabeling, critic reset), diffusion training, generation (samples per second).
 """
@@ -30,9 +32,15 @@ from sb3_pride.zoo import hyperparams_dir, model_kwargs
 OVERRIDES = dict(unsupervised_steps=2000, max_feedback=200)
 
 
-def tier_kwargs(algo: str, env_id: str) -> dict:
+def tier_kwargs(algo: str, env_id: str, as_tier: bool = False) -> dict:
     _, kwargs = model_kwargs(hyperparams_dir() / "cpu" / f"{algo}.yml", env_id)
-    return {**kwargs, **(OVERRIDES if algo != "sac" else {})}
+    return {**kwargs, **(OVERRIDES if algo != "sac" and not as_tier else {})}
+
+
+def tier_timesteps(env_id: str) -> int:
+    """The CPU tier's run length for this env (its YAML entry's n_timesteps)."""
+    n_timesteps, _ = model_kwargs(hyperparams_dir() / "cpu" / "pebble.yml", env_id)
+    return n_timesteps
 
 
 class TimedFeedback(FeedbackCallback):
@@ -64,11 +72,11 @@ class TimedDiffusion(DiffusionCallback):
 TIMES: dict[str, float] = defaultdict(float)
 
 
-def run(algo: str, env_id: str, timesteps: int, seed: int) -> dict:
+def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False) -> dict:
     th.set_num_threads(1)
     TIMES.clear()
     cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
-    model = cls("MlpPolicy", env_id, seed=seed, **tier_kwargs(algo, env_id))
+    model = cls("MlpPolicy", env_id, seed=seed, **tier_kwargs(algo, env_id, as_tier))
     if algo != "sac":
         timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
         model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
@@ -83,20 +91,28 @@ def main() -> None:
     parser.add_argument("--timesteps", type=int, default=15_000)
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--algos", nargs="+", default=["sac", "pebble", "pride"])
+    parser.add_argument(
+        "--as-tier",
+        action="store_true",
+        help="the CPU tier's own run: its n_timesteps, pre-training and feedback budget (no shortening)",
+    )
+    parser.add_argument("--seed", type=int, default=0, help="seed of the first repeat (repeat i uses seed + i)")
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
+    if args.as_tier:
+        args.timesteps = tier_timesteps(args.env)
 
     results: dict[str, list[dict]] = defaultdict(list)
     for repeat in range(args.repeats):
         for algo in args.algos:
-            results[algo].append(run(algo, args.env, args.timesteps, seed=repeat))
+            results[algo].append(run(algo, args.env, args.timesteps, seed=args.seed + repeat, as_tier=args.as_tier))
             print(f"repeat {repeat} {algo}: {results[algo][-1]['seconds']:.1f} s", flush=True)
     medians = {
         algo: {key: float(np.median([r.get(key, 0.0) for r in runs])) for key in runs[0]} for algo, runs in results.items()
     }
-    kwargs = {algo: tier_kwargs(algo, args.env) for algo in args.algos}
-    report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "kwargs": kwargs,
-              "runs": results, "medians": medians}  # fmt: skip
+    kwargs = {algo: tier_kwargs(algo, args.env, args.as_tier) for algo in args.algos}
+    report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "as_tier": args.as_tier,
+              "seed": args.seed, "kwargs": kwargs, "runs": results, "medians": medians}  # fmt: skip
     for algo, median in medians.items():
         line = f"{algo:8s} {median['seconds']:7.1f} s"
         for base in ("sac", "pebble"):

@@ -54,3 +54,23 @@ def test_explicit_budget_and_ratios_span_the_grid(run):
 def test_unknown_task_or_tier_is_named(run, argv, message):
     with pytest.raises(SystemExit, match=message):
         names(run, *argv)
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (
+            "--algos pride pebble --set synthetic_on_top=false",
+            "synthetic_on_top: not an argument of PEBBLE; run --algos pride",
+        ),
+        ("--algos pride --set synthetic_on_tpo=false", "synthetic_on_tpo: not an argument of PRIDE"),
+    ],
+)
+def test_a_set_key_an_algorithm_does_not_take_fails_before_any_run(run, argv, message):
+    """--set goes to every algorithm of the grid: one that does not take the key (or a misspelt key) stops the grid
+    before it starts, instead of failing in a worker later."""
+    with pytest.raises(SystemExit, match=message):
+        names(run, "--tasks", "walker-walk", "--tag", "x", *argv.split())
+    assert (
+        len(names(run, "--tasks", "walker-walk", "--tag", "x", "--algos", "pride", "pebble", "--set", "batch_size=512")) == 2
+    )
