@@ -80,8 +80,23 @@ def constructor_arguments(algo: str) -> set[str]:
     return names - {"self"}
 
 
+#: constructor arguments a run sets itself (the run name records the budget and u): --set must not change them
+SET_BY_THE_GRID = {
+    "policy": "the grid uses MlpPolicy",
+    "env": "use --tasks",
+    "seed": "use --seeds",
+    "verbose": "runs log to progress.csv",
+    "_init_setup_model": "the grid builds the model",
+    "max_feedback": "use --feedback, which the run name records",
+    "synthetic_ratio": "use --ratios, which the run name records",
+}
+
+
 def check_overrides(overrides: dict[str, Any], algos: list[str]) -> None:
     """Fail before any run starts if an algorithm of the grid does not take a --set key (e.g. PEBBLE and u)."""
+    for key in overrides:
+        if key in SET_BY_THE_GRID:
+            raise SystemExit(f"--set {key}: set by the grid itself ({SET_BY_THE_GRID[key]})")
     for algo in algos:
         unknown = sorted(set(overrides) - constructor_arguments(algo))
         if unknown:

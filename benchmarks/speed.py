@@ -88,7 +88,7 @@ def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--env", default="sb3_pride/walker-walk-v0")
-    parser.add_argument("--timesteps", type=int, default=15_000)
+    parser.add_argument("--timesteps", type=int, default=None, help="15000, or with --as-tier the tier's n_timesteps")
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument("--algos", nargs="+", default=["sac", "pebble", "pride"])
     parser.add_argument(
@@ -99,8 +99,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed of the first repeat (repeat i uses seed + i)")
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
-    if args.as_tier:
-        args.timesteps = tier_timesteps(args.env)
+    if args.timesteps is None:
+        args.timesteps = tier_timesteps(args.env) if args.as_tier else 15_000
 
     results: dict[str, list[dict]] = defaultdict(list)
     for repeat in range(args.repeats):

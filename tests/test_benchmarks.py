@@ -64,6 +64,9 @@ def test_unknown_task_or_tier_is_named(run, argv, message):
             "synthetic_on_top: not an argument of PEBBLE; run --algos pride",
         ),
         ("--algos pride --set synthetic_on_tpo=false", "synthetic_on_tpo: not an argument of PRIDE"),
+        ("--algos sac --set max_feedback=200", "max_feedback: set by the grid itself .use --feedback"),
+        ("--algos pride --set synthetic_ratio=0.25", "synthetic_ratio: set by the grid itself .use --ratios"),
+        ("--algos pebble --set seed=3", "seed: set by the grid itself .use --seeds"),
     ],
 )
 def test_a_set_key_an_algorithm_does_not_take_fails_before_any_run(run, argv, message):

@@ -212,11 +212,12 @@ def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synth
 
 
 def test_synthetic_on_top_trains_as_pebble_until_the_first_generation(tiny_kwargs):
-    """With synthetic_on_top every minibatch holds batch_size real rows: until the first generation (step 300 here)
-    PRIDE trains exactly as PEBBLE (bit-identical weights), not on a larger minibatch of real rows."""
-    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, **tiny_kwargs).learn(299)
-    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **{**tiny_kwargs, **TINY_DIFFUSION, "synthetic_on_top": True})
-    on_top.learn(299)
+    """With synthetic_on_top every minibatch holds batch_size real rows: until the first generation (step 600 here)
+    PRIDE trains exactly as PEBBLE (bit-identical weights), the first feedback session and critic reset (step 300)
+    included, not on a larger minibatch of real rows."""
+    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, **tiny_kwargs).learn(599)
+    kwargs = {**tiny_kwargs, **TINY_DIFFUSION, "synthetic_on_top": True, "synthetic_start": 600}
+    on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **kwargs).learn(599)
     assert on_top.replay_buffer.synthetic.size() == 0 and on_top.minibatch_size(64) == 64
     for p, q in zip(pebble.policy.parameters(), on_top.policy.parameters(), strict=True):
         assert th.equal(p, q)
@@ -232,7 +233,7 @@ def test_synthetic_on_top_rows_grow_with_the_ramp_of_u(tiny_kwargs):
     assert model.first_generation_step == 300
     assert {rows for part, rows in drawn if part == "real"} == {64}
     synthetic = [rows for part, rows in drawn if part == "synthetic"]
-    assert synthetic == sorted(synthetic) and synthetic[0] <= 1 and synthetic[-1] == 64
+    assert synthetic == sorted(synthetic) and synthetic[0] == 1 and synthetic[-1] == 64
     assert len(synthetic) == 450 - 301  # none before the first generation; at steps 300 and 301 round(u·M) is 0
 
 

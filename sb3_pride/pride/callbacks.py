@@ -39,8 +39,9 @@ class DiffusionCallback(BaseCallback):
         if model.in_pretraining or model.synthetic_ratio == 0 or model.num_timesteps < model.next_diffusion_step:
             return True
         if model.num_timesteps >= model._total_timesteps and model.num_timesteps > self.first_step:
-            # the last env step of this learn(): its data would feed one update at most, so the retrain waits for
-            # the first step of the next learn() (a CPU-tier run saves one retrain, ~25 s, with the same policy)
+            # past the last env step this learn() asked for: its data would feed only the updates of the rollout's
+            # end, so the retrain waits for the first step of the next learn() (a CPU-tier run saves one retrain,
+            # ~25 s, and evaluates the same policy)
             return True
         model.next_diffusion_step = model.num_timesteps + model.diffusion_interval
         real = model.transition_vectors()

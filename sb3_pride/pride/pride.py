@@ -37,7 +37,7 @@ class PRIDE(PEBBLE):
     first reward model exists, an EDM diffusion model (as SynthER) is fitted on the real transitions (s, a, s')
     and generates ``synthetic_samples`` new ones into a separate synthetic buffer; every SAC minibatch is then
     ``round(synthetic_ratio · batch_size)`` synthetic transitions and the rest real ones (or, with
-    ``synthetic_on_top``, once u is reached, ``batch_size`` real ones and synthetic ones on top, in the same share).
+    ``synthetic_on_top``, ``batch_size`` real ones and synthetic ones on top, in the same share as u ramps up).
 
     Synthetic rewards are r̂(s, a) of the current reward model: set at generation and relabeled together with the
     real buffer after every reward update. (The paper relabels the real buffer only, which leaves synthetic
