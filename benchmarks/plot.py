@@ -305,6 +305,8 @@ def main() -> None:
             if seeds:
                 parser.error(f"--runs: {key[0]} {key[1]} has seeds {sorted(seeds)} in {folder} and in an earlier folder")
             groups[key].extend(runs)
+    for runs in groups.values():  # seed order: a pooled bootstrap interval must not depend on the order of --runs
+        runs.sort(key=lambda run: run["settings"]["seed"])
     if args.compare:
         compare(groups, args.compare, parser)
         return

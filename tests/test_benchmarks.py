@@ -1,6 +1,8 @@
-"""benchmarks/run.py: the grid a user gets from the command line follows the shipped YAML unless told otherwise."""
+"""benchmarks/run.py and plot.py: the grid a user gets from the command line follows the shipped YAML unless told otherwise; pooled comparisons do not depend on folder order."""
 
 import importlib.util
+import json
+import sys
 from pathlib import Path
 
 import pytest
@@ -77,3 +79,37 @@ def test_a_set_key_an_algorithm_does_not_take_fails_before_any_run(run, argv, me
     assert (
         len(names(run, "--tasks", "walker-walk", "--tag", "x", "--algos", "pride", "pebble", "--set", "batch_size=512")) == 2
     )
+
+
+@pytest.fixture(scope="module")
+def plot():
+    spec = importlib.util.spec_from_file_location("benchmarks_plot", ROOT / "benchmarks" / "plot.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def write_run(folder: Path, algo: str, seed: int, final_return: float) -> None:
+    """A finished run folder as run.py leaves it (the files plot.py reads)."""
+    run = folder / f"{algo}_walker-walk_s{seed}_fb400"
+    run.mkdir(parents=True)
+    settings = {"algo": algo, "task": "walker-walk", "seed": seed, "feedback": 400, "ratio": 0.5, "tag": ""}
+    (run / "settings.json").write_text(json.dumps(settings))
+    (run / "curve.csv").write_text(f"step,true_return,success\n5000,10.0,\n10000,{final_return},\n")
+    (run / "result.json").write_text(json.dumps({"final_return": final_return}))
+
+
+def test_pooled_comparison_does_not_depend_on_the_order_of_the_folders(plot, tmp_path, monkeypatch, capsys):
+    """plot.py --runs A B and --runs B A pool the same seeds: the bootstrap interval of P(X > Y) must be the same."""
+    returns = {"pride": [303.6, 382.0, 342.0, 384.1, 415.6, 271.1], "pebble": [362.7, 411.2, 335.1, 309.5, 387.6, 362.7]}
+    for algo, values in returns.items():
+        for seed, value in enumerate(values):
+            write_run(tmp_path / ("a" if seed in (0, 2, 3) else "b"), algo, seed, value)
+    printed = []
+    for folders in (["a", "b"], ["b", "a"]):  # without the sort by seed: [0.11, 0.81] and [0.11, 0.78]
+        argv = ["plot.py", "--runs", *(str(tmp_path / f) for f in folders),
+                "--compare", "walker-walk", "PRIDE (400 queries, u=0.5)", "PEBBLE (400 queries)"]  # fmt: skip
+        monkeypatch.setattr(sys, "argv", argv)
+        plot.main()
+        printed.append(capsys.readouterr().out)
+    assert "6 vs 6" in printed[0] and printed[0] == printed[1]
