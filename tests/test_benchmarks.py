@@ -1,4 +1,5 @@
-"""benchmarks/run.py and plot.py: the grid a user gets from the command line follows the shipped YAML unless told otherwise; pooled comparisons do not depend on folder order."""
+"""benchmarks/run.py and plot.py: the grid a user gets from the command line follows the shipped YAML unless told
+otherwise; pooled comparisons do not depend on the order of the folders."""
 
 import importlib.util
 import json
