@@ -175,10 +175,13 @@ def record_draws(buffer: DualReplayBuffer) -> list[tuple[str, int]]:
     return drawn
 
 
-def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs):
+@pytest.mark.parametrize("on_top", [False, True])
+def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs, on_top):
     """The paper's argument for synthetic data, a higher update-to-data ratio: with gradient_steps=2 every env step
-    makes two SAC updates, each on its own minibatch of round(u·B) synthetic and B − round(u·B) real transitions."""
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, gradient_steps=2, **tiny_kwargs, **TINY_DIFFUSION)
+    makes two SAC updates, each on its own minibatch of round(u·B) synthetic and B − round(u·B) real transitions, or
+    with synthetic_on_top of B real ones and B·u/(1 − u) synthetic ones on top."""
+    kwargs = {**tiny_kwargs, **TINY_DIFFUSION, "synthetic_on_top": on_top}
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, gradient_steps=2, **kwargs)
     model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
     model.learn(350)  # synthetic data from step 300
     assert model.replay_buffer.synthetic.size() > 0
@@ -186,8 +189,8 @@ def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs):
     updates = model._n_updates
     model.learn(10, reset_num_timesteps=False)
     assert model._n_updates - updates == 20  # two updates per env step
-    half = model.batch_size // 2  # u = 0.5
-    assert drawn == [("synthetic", half), ("real", half)] * 20
+    rows = model.batch_size if on_top else model.batch_size // 2  # u = 0.5
+    assert drawn == [("synthetic", rows), ("real", rows)] * 20
 
 
 @pytest.mark.parametrize(("ratio", "n_synthetic"), [(0.5, 64), (0.25, 21)])
