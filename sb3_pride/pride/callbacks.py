@@ -16,7 +16,9 @@ class DiffusionCallback(BaseCallback):
     exists (so synthetic data never carries an untrained reward) and from ``synthetic_start`` on, fit the diffusion
     model on the real transitions (s, a, s'), generate, and replace the synthetic buffer with ``synthetic_samples``
     new transitions (the ``synthetic_keep_quantile`` share the filter trusts most), rewarded by r̂. A retrain due at
-    the last step of a ``learn()`` call (not its only step) is made at the first step of the next one instead.
+    the last step of a ``learn()`` call (not its only step) is made at the first step of the next one instead, and
+    any retrain waits while the real buffer holds fewer than ``batch_size`` transitions (a run resumed without its
+    replay buffer).
 
     Logs under ``diffusion/``: the loss, train / generate / fidelity seconds, samples per second, samples dropped;
     with ``fidelity_check``, ``dynamics_error_ratio`` (synthetic next-state error under a one-step dynamics ensemble
@@ -42,6 +44,10 @@ class DiffusionCallback(BaseCallback):
             # past the last env step this learn() asked for: its data would feed only the updates of the rollout's
             # end, so the retrain waits for the first step of the next learn() (a CPU-tier run saves one retrain,
             # ~25 s, and evaluates the same policy)
+            return True
+        if model.real_buffer.size() < model.batch_size:
+            # fewer real transitions than one SAC minibatch (a run resumed without its replay buffer): the retrain
+            # waits until there are enough to fit on and to hold some out for the fidelity check
             return True
         model.next_diffusion_step = model.num_timesteps + model.diffusion_interval
         real = model.transition_vectors()

@@ -55,10 +55,12 @@ class PRIDE(PEBBLE):
     about as close as a fresh real transition has. The mixing defaults (synthetic data from step 10k, u ramped over
     5k steps, a 20k-transition window, the better-judged half of the samples kept) are on because with the paper's
     mixing the same generator ends below PEBBLE on walker-walk (275.3 against 349.4, P = 0.00, 3 and 5 seeds) while
-    with them it ties or leads it; no one of them is needed once the other two are on. With the synthetic rows on
-    top of ``batch_size`` real ones (``synthetic_on_top``) it beats PEBBLE at the same rows per update on every pair
-    of seeds at 400 queries (413.2 against 325.3, P = 1.00, 5 seeds each); in place of real ones it ties PEBBLE
-    (P = 0.65, 10 seeds each). Their step counts were measured on 50k-step runs: scale them with the run.
+    with them it ties or leads it; no one of them is needed once the other two are on. Their step counts were
+    measured on 50k-step runs: scale them with the run. With the synthetic rows on top of ``batch_size`` real ones
+    (``synthetic_on_top``) it leads PEBBLE on walker-walk at 400 queries (433.9 against 349.4, P = 0.84 [0.52, 1.00],
+    5 seeds each; over 10 seeds each 421.6 against 362.7, P = 0.68 [0.42, 0.89], a tie with the rows in place), at
+    1.68× its wall time; in place of real ones it ties PEBBLE (P = 0.65, 10 seeds each) at 1.31–1.39×. With 200
+    queries no variant matches PEBBLE at 400.
     Paper-scale diffusion settings (SynthER's: width 1024, 6 blocks, 100k training steps, 128 sampling steps; 200k
     samples per generation here) are in ``hyperparams/pride.yml`` with the paper's recipe.
 
