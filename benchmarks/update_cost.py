@@ -33,9 +33,8 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
     th.set_num_threads(1)
-    _, kwargs = model_kwargs(hyperparams_dir() / "cpu" / "pebble.yml", args.env)
-    sac_keys = ("learning_rate", "tau", "gamma", "ent_coef", "policy_kwargs", "target_update_interval")
-    model = SAC("MlpPolicy", args.env, seed=0, learning_starts=0, **{key: kwargs[key] for key in sac_keys if key in kwargs})
+    _, kwargs = model_kwargs(hyperparams_dir() / "cpu" / "sac.yml", args.env)  # PEBBLE's SAC settings at this tier
+    model = SAC("MlpPolicy", args.env, seed=0, **{**kwargs, "learning_starts": 0})
     model.learn(max(args.batch_sizes) * 4)  # a buffer to draw from (and SB3's logger set up)
     times: dict[int, list[float]] = {size: [] for size in args.batch_sizes}
     for _ in range(args.rounds):

@@ -13,12 +13,17 @@ from sb3_pride.zoo import hyperparams_dir, model_kwargs
 ROOT = Path(__file__).resolve().parent.parent
 
 
-@pytest.fixture(scope="module")
-def run():
-    spec = importlib.util.spec_from_file_location("benchmarks_run", ROOT / "benchmarks" / "run.py")
+def load_script(name: str):
+    """A script of benchmarks/ (not a package) imported as a module."""
+    spec = importlib.util.spec_from_file_location(f"benchmarks_{name}", ROOT / "benchmarks" / f"{name}.py")
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
+
+
+@pytest.fixture(scope="module")
+def run():
+    return load_script("run")
 
 
 def names(run, *argv: str) -> list[str]:
@@ -84,10 +89,7 @@ def test_a_set_key_an_algorithm_does_not_take_fails_before_any_run(run, argv, me
 
 @pytest.fixture(scope="module")
 def plot():
-    spec = importlib.util.spec_from_file_location("benchmarks_plot", ROOT / "benchmarks" / "plot.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("plot")
 
 
 def write_run(folder: Path, algo: str, seed: int, final_return: float) -> None:
