@@ -2,6 +2,8 @@
 Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identical networks, one process.
 
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
+    python benchmarks/speed.py --algos pebble pride --variant in_place synthetic_on_top=false --timesteps 25000
+
 
 PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
 feedback budget for the shorter run; ``--as-tier`` runs the tier's own run instead (50k steps on walker-walk, the
@@ -15,11 +17,13 @@ import json
 import os
 import time
 from collections import defaultdict
+from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np
 import torch as th
+from run import parse_overrides
 from stable_baselines3 import SAC
 
 import sb3_pride
@@ -72,13 +76,21 @@ class TimedDiffusion(DiffusionCallback):
 TIMES: dict[str, float] = defaultdict(float)
 
 
-def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False) -> dict:
+def parse_variant(words: list[str]) -> tuple[str, dict[str, Any]]:
+    """``--variant LABEL KEY=VALUE ...`` into ``("pride[LABEL]", {KEY: VALUE})``, values read as YAML."""
+    if len(words) < 2:
+        raise SystemExit(f"--variant takes a label and at least one key=value, got {words!r}")
+    return f"pride[{words[0]}]", parse_overrides(words[1:])
+
+
+def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False, **overrides: Any) -> dict:
     th.set_num_threads(1)
     TIMES.clear()
-    cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
-    model = cls("MlpPolicy", env_id, seed=seed, **tier_kwargs(algo, env_id, as_tier))
-    if algo != "sac":
-        timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
+    base = "pride" if algo.startswith("pride") else algo
+    cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[base]
+    model = cls("MlpPolicy", env_id, seed=seed, **{**tier_kwargs(base, env_id, as_tier), **overrides})
+    if base != "sac":
+        timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if base == "pride" else [])
         model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
     start = time.perf_counter()
     model.learn(timesteps)
@@ -97,24 +109,36 @@ def main() -> None:
         help="the CPU tier's own run: its n_timesteps, pre-training and feedback budget (no shortening)",
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first repeat (repeat i uses seed + i)")
+    parser.add_argument(
+        "--variant",
+        nargs="+",
+        action="append",
+        default=[],
+        metavar="LABEL KEY=VALUE",
+        help="also run PRIDE with these settings changed, reported as pride[LABEL] (repeatable)",
+    )
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
+    variants = dict(parse_variant(words) for words in args.variant)
+    algos = args.algos + list(variants)
     if args.timesteps is None:
         args.timesteps = tier_timesteps(args.env) if args.as_tier else 15_000
 
     results: dict[str, list[dict]] = defaultdict(list)
     for repeat in range(args.repeats):
-        for algo in args.algos:
-            results[algo].append(run(algo, args.env, args.timesteps, seed=args.seed + repeat, as_tier=args.as_tier))
+        for algo in algos:
+            seed = args.seed + repeat
+            results[algo].append(run(algo, args.env, args.timesteps, seed, args.as_tier, **variants.get(algo, {})))
             print(f"repeat {repeat} {algo}: {results[algo][-1]['seconds']:.1f} s", flush=True)
     medians = {
         algo: {key: float(np.median([r.get(key, 0.0) for r in runs])) for key in runs[0]} for algo, runs in results.items()
     }
     kwargs = {algo: tier_kwargs(algo, args.env, args.as_tier) for algo in args.algos}
+    kwargs.update({algo: {**tier_kwargs("pride", args.env, args.as_tier), **changed} for algo, changed in variants.items()})
     report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "as_tier": args.as_tier,
               "seed": args.seed, "kwargs": kwargs, "runs": results, "medians": medians}  # fmt: skip
     for algo, median in medians.items():
-        line = f"{algo:8s} {median['seconds']:7.1f} s"
+        line = f"{algo:16s} {median['seconds']:7.1f} s"
         for base in ("sac", "pebble"):
             if base in medians and base != algo:
                 line += f"  x{median['seconds'] / medians[base]['seconds']:.3f} of {base.upper()}"
