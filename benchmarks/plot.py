@@ -3,7 +3,8 @@ The paper's figures re-drawn from ``benchmarks/run.py`` results, plus an rliable
 
     python benchmarks/plot.py --runs benchmarks/results/runs --out benchmarks/results/figures
 
-``--runs`` takes several folders and pools their runs (the same configuration's seeds from each).
+``--runs`` takes several folders and pools their runs (the same configuration's seeds from each); ``--only`` keeps
+the configurations named (labels as in ``summary.md``), e.g. a default against PEBBLE in a figure of its own.
 
 For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 and of SAC
 (the paper's Figures 2–4: equal feedback, and PRIDE at reduced feedback), the synthetic-ratio sweep of PRIDE
@@ -104,7 +105,13 @@ def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, p
         steps, values = stack(runs, column)
         mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
         settings = runs[0]["settings"]
-        color = COLORS[settings["algo"]] if settings["algo"] != "pride" or settings["ratio"] == 0.5 else f"C{i + 3}"
+        color = (
+            f"C{i % 10}"  # few configurations (--only): one colour each, two PRIDE variants included
+            if len(selected) <= 4
+            else COLORS[settings["algo"]]
+            if settings["algo"] != "pride" or settings["ratio"] == 0.5
+            else f"C{i + 3}"
+        )
         style = (
             "--"
             if settings["algo"] == "pride"
@@ -294,6 +301,9 @@ def main() -> None:
     parser.add_argument("--runs", type=Path, nargs="+", default=[Path("benchmarks/results/runs")],
                         help="folders of runs, pooled (e.g. runs/ and a folder of extra seeds)")  # fmt: skip
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/figures"))
+    parser.add_argument("--only", nargs="+", metavar="LABEL", default=None,
+                        help="figures and summary of these configurations only (labels as in summary.md), e.g. "
+                             "the default against PEBBLE")  # fmt: skip
     parser.add_argument("--compare", nargs=3, action="append", metavar=("TASK", "X", "Y"),
                         help="print P(X > Y) for these two configurations (labels as in summary.md) and nothing "
                              "else; may be repeated")  # fmt: skip
@@ -307,6 +317,11 @@ def main() -> None:
             groups[key].extend(runs)
     for runs in groups.values():  # seed order: a pooled bootstrap interval must not depend on the order of --runs
         runs.sort(key=lambda run: run["settings"]["seed"])
+    if args.only:
+        unknown = sorted(set(args.only) - {name for _, name in groups})
+        if unknown:
+            parser.error(f"--only: no runs labeled {unknown}; the labels are {sorted({name for _, name in groups})}")
+        groups = defaultdict(list, {key: runs for key, runs in groups.items() if key[1] in args.only})
     if args.compare:
         compare(groups, args.compare, parser)
         return

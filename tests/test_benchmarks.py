@@ -116,3 +116,23 @@ def test_pooled_comparison_does_not_depend_on_the_order_of_the_folders(plot, tmp
         plot.main()
         printed.append(capsys.readouterr().out)
     assert "6 vs 6" in printed[0] and printed[0] == printed[1]
+
+
+def test_only_keeps_the_named_configurations_and_names_an_unknown_one(plot, tmp_path, monkeypatch, capsys):
+    """--only restricts the figures and the summary to the labels given; a label no run has is an error that lists
+    the labels there are, before anything is written."""
+    for seed in range(2):
+        write_run(tmp_path / "runs", "pride", seed, 300.0 + seed)
+        write_run(tmp_path / "runs", "pebble", seed, 250.0 + seed)
+    out = tmp_path / "figures"
+    argv = ["plot.py", "--runs", str(tmp_path / "runs"), "--out", str(out), "--only", "PEBBLE (400 queries)"]
+    monkeypatch.setattr(sys, "argv", argv)
+    plot.main()
+    summary = (out / "summary.md").read_text()
+    assert "PEBBLE (400 queries)" in summary and "PRIDE" not in summary
+    assert (out / "curves_walker-walk.png").exists()
+    monkeypatch.setattr(sys, "argv", [*argv[:-1], "PRIDE (400 queries)", "--out", str(tmp_path / "never")])
+    with pytest.raises(SystemExit):
+        plot.main()
+    assert "--only: no runs labeled ['PRIDE (400 queries)']" in capsys.readouterr().err
+    assert not (tmp_path / "never").exists()
