@@ -2,7 +2,7 @@
 Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identical networks, one process.
 
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
-    python benchmarks/speed.py --algos pebble pride --variant in_place synthetic_on_top=false --timesteps 25000
+    python benchmarks/speed.py --algos pebble pride --variant on_top synthetic_on_top=true --timesteps 25000
 
 
 PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
