@@ -105,13 +105,12 @@ def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, p
         steps, values = stack(runs, column)
         mean, std = np.nanmean(values, axis=0), np.nanstd(values, axis=0)
         settings = runs[0]["settings"]
-        color = (
-            f"C{i % 10}"  # few configurations (--only): one colour each, two PRIDE variants included
-            if len(selected) <= 4
-            else COLORS[settings["algo"]]
-            if settings["algo"] != "pride" or settings["ratio"] == 0.5
-            else f"C{i + 3}"
-        )
+        if len(selected) <= 4:  # few configurations (e.g. with --only): one colour each, PRIDE variants included
+            color = f"C{i}"
+        elif settings["algo"] != "pride" or settings["ratio"] == 0.5:
+            color = COLORS[settings["algo"]]
+        else:
+            color = f"C{i + 3}"
         style = (
             "--"
             if settings["algo"] == "pride"

@@ -4,7 +4,6 @@ Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identica
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
     python benchmarks/speed.py --algos pebble pride --variant on_top synthetic_on_top=true --timesteps 25000
 
-
 PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
 feedback budget for the shorter run; ``--as-tier`` runs the tier's own run instead (50k steps on walker-walk, the
 YAML unchanged), and ``--algos pebble`` and ``--algos pride`` can then run side by side, one per core. The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
@@ -86,11 +85,10 @@ def parse_variant(words: list[str]) -> tuple[str, dict[str, Any]]:
 def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False, **overrides: Any) -> dict:
     th.set_num_threads(1)
     TIMES.clear()
-    base = "pride" if algo.startswith("pride") else algo
-    cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[base]
-    model = cls("MlpPolicy", env_id, seed=seed, **{**tier_kwargs(base, env_id, as_tier), **overrides})
-    if base != "sac":
-        timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if base == "pride" else [])
+    cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
+    model = cls("MlpPolicy", env_id, seed=seed, **{**tier_kwargs(algo, env_id, as_tier), **overrides})
+    if algo != "sac":
+        timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
         model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
     start = time.perf_counter()
     model.learn(timesteps)
@@ -126,9 +124,10 @@ def main() -> None:
 
     results: dict[str, list[dict]] = defaultdict(list)
     for repeat in range(args.repeats):
-        for algo in algos:
-            seed = args.seed + repeat
-            results[algo].append(run(algo, args.env, args.timesteps, seed, args.as_tier, **variants.get(algo, {})))
+        for algo in algos:  # a variant's label runs PRIDE with its settings changed
+            seed, changed = args.seed + repeat, variants.get(algo, {})
+            kind = "pride" if algo in variants else algo
+            results[algo].append(run(kind, args.env, args.timesteps, seed, args.as_tier, **changed))
             print(f"repeat {repeat} {algo}: {results[algo][-1]['seconds']:.1f} s", flush=True)
     medians = {
         algo: {key: float(np.median([r.get(key, 0.0) for r in runs])) for key in runs[0]} for algo, runs in results.items()
