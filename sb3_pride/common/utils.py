@@ -34,3 +34,18 @@ def check_real(name: str, value: Any, accepted: Callable[[float], bool], expecte
     is_real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, (bool, np.bool_))
     if not is_real or np.isnan(value) or not accepted(value):
         raise ValueError(f"{name} must be {expected}, got {value!r}")
+
+
+def merge_kwargs(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """
+    ``base`` updated with ``overrides``, where both hold a dict under the same key (a ``*_kwargs`` argument) merged
+    the same way instead of replaced: ``merge_kwargs(recipe, {"generator_kwargs": {"train_steps": 2000}})`` keeps the
+    recipe's other generator settings. Neither argument is changed.
+    """
+    merged = dict(base)
+    for key, value in overrides.items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = merge_kwargs(merged[key], value)
+        else:
+            merged[key] = value
+    return merged
