@@ -33,10 +33,7 @@ model = sb3_pride.PRIDE(
     synthetic_start=0,  # PRIDE()'s default, 10k, is sized for 50k-step runs
     synthetic_ramp=0,
     synthetic_samples=256,
-    diffusion_width=16,
-    diffusion_blocks=1,
-    diffusion_train_steps=20,
-    dynamics_kwargs=dict(width=16, train_steps=20),
+    generator_kwargs=dict(width=16, n_blocks=1, train_steps=20, dynamics_kwargs=dict(width=16, train_steps=20)),
     **tiny,
 )
 model.learn(400)

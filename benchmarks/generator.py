@@ -36,7 +36,7 @@ import sb3_pride  # noqa: F401  (registers the environments)
 from run import env_id  # benchmarks/run.py, beside this script
 from sb3_pride.common.diffusion import NORMALIZATIONS, ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions
-from sb3_pride.pride.pride import add_states_to_next_states
+from sb3_pride.common.generator import add_states_to_next_states
 
 
 def collect(task: str, n: int, seed: int) -> tuple[np.ndarray, int]:

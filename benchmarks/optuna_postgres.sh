@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Issue 11 §4: one optuna study shared by two rl-zoo3 workers through PostgreSQL, for real.
+# One optuna study shared by two rl-zoo3 workers through PostgreSQL, for real.
 #
 # Starts a throwaway PostgreSQL server from Debian's package (apt-get install postgresql) on a free local port,
 # creates the study, runs the README's "several machines" command twice at once (two workers, here two processes on one machine; on several

@@ -49,18 +49,23 @@ def label(settings: dict) -> str:
     return text + ")"
 
 
+def load_run(folder: Path, progress: bool = True) -> dict:
+    """A finished run's folder: its settings, curve arrays and (``progress=True``, when present) SB3 log columns."""
+    settings = json.loads((folder / "settings.json").read_text())
+    curve = np.atleast_1d(np.genfromtxt(folder / "curve.csv", delimiter=",", names=True))
+    columns = None
+    if progress and (folder / "progress.csv").exists():
+        table = np.genfromtxt(folder / "progress.csv", delimiter=",", names=True, deletechars="", dtype=float)
+        columns = {key: np.atleast_1d(table[key]) for key in table.dtype.names}
+    return {"settings": settings, "curve": curve, "progress": columns}
+
+
 def load_runs(folder: Path) -> dict[tuple[str, str], list[dict]]:
     """{(task, configuration label): [run, ...]}, each run with its settings and curve arrays."""
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    for run in sorted(folder.glob("*/result.json")):
-        settings = json.loads((run.parent / "settings.json").read_text())
-        curve = np.genfromtxt(run.parent / "curve.csv", delimiter=",", names=True)
-        curve = np.atleast_1d(curve)
-        progress = None
-        if (run.parent / "progress.csv").exists():
-            table = np.genfromtxt(run.parent / "progress.csv", delimiter=",", names=True, deletechars="", dtype=float)
-            progress = {key: np.atleast_1d(table[key]) for key in table.dtype.names}
-        groups[(settings["task"], label(settings))].append({"settings": settings, "curve": curve, "progress": progress})
+    for result in sorted(folder.glob("*/result.json")):
+        run = load_run(result.parent)
+        groups[(run["settings"]["task"], label(run["settings"]))].append(run)
     return groups
 
 

@@ -1,5 +1,5 @@
 """
-Issue 10: what showing a segment pair to a person costs. For walker-walk and button-press, seconds to re-render one
+What showing a segment pair to a person costs. For walker-walk and button-press, seconds to re-render one
 pair of 50-step segments from recorded states (``SegmentRenderer``, 320 x 240, headless EGL) and to encode it as two
 H.264 clips (``encode_mp4``), and the memory the recorded states add to the replay buffer per 100k transitions.
 

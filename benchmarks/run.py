@@ -1,17 +1,22 @@
 """
 A grid of training runs — algorithm × task × seed × feedback budget × synthetic ratio — each in its own process,
-``--jobs`` at a time, resumable: a run whose ``result.json`` exists is skipped, so a grid can grow across sessions.
+``--jobs`` at a time, resumable: a run whose ``result.json`` exists is skipped, so a grid can grow run by run.
 
     python benchmarks/run.py --tier cpu --tasks walker-walk --algos pride pebble --seeds 0 1 2 3 4 \\
         --feedback 400 200 --ratios 0.5 --jobs 2 --out benchmarks/results/runs
 
 Settings come from ``hyperparams/<tier>/<algo>.yml`` (``--tier paper`` uses ``hyperparams/<algo>.yml``);
-``--feedback`` overrides ``max_feedback`` and ``--ratios`` overrides PRIDE's ``synthetic_ratio``; left out, each
+``--set KEY=VALUE`` changes a constructor argument (a dotted key, ``generator_kwargs.train_steps=2000``, changes one
+entry of a nested dict and keeps the others); ``--feedback`` overrides ``max_feedback`` and ``--ratios`` overrides PRIDE's ``synthetic_ratio``; left out, each
 task gets its YAML entry's own value (e.g. u = 0.25 on cheetah-run, 2000 queries on Meta-World). SAC on the true
 reward ignores both. Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
 EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv``, ``result.json`` and
 ``progress.csv`` (SB3's logger: feedback counts, reward-model accuracy and true-reward correlation, diffusion
-fidelity and timings, SAC losses).
+fidelity and timings, SAC losses). ``settings.json`` records the run's settings, the ``sb3_pride`` version, the git
+commit of the tree (and whether it had uncommitted changes) and the library versions and CPU.
+
+Named configurations (``hyperparams/<tier>/variants.yml``) and grids of them (``benchmarks/grids/*.yml``) are run by
+``benchmarks/grid.py``, which uses this module's functions.
 """
 
 import argparse
@@ -29,6 +34,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 ROOT = Path(__file__).resolve().parent.parent
 DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk"}
+ALGOS = ("pride", "pebble", "sac")
 
 
 def env_id(task: str) -> str:
@@ -47,16 +53,61 @@ def run_name(spec: dict[str, Any]) -> str:
 
 
 def parse_overrides(pairs: list[str]) -> dict[str, Any]:
-    """``key=value`` strings (value read as YAML: numbers, booleans, lists) into keyword arguments."""
+    """
+    ``key=value`` strings (value read as YAML: numbers, booleans, lists) into keyword arguments; a dotted key
+    (``generator_kwargs.train_steps=2000``) becomes a nested dict, merged into the YAML entry's by :func:`merge`.
+    """
     import yaml
 
-    overrides = {}
+    overrides: dict[str, Any] = {}
     for pair in pairs:
         key, sep, value = pair.partition("=")
-        if not sep or not key:
+        if not sep or not key or "" in key.split("."):
             raise SystemExit(f"--set takes key=value, got {pair!r}")
-        overrides[key] = yaml.safe_load(value)
+        *parents, leaf = key.split(".")
+        node = overrides
+        for parent in parents:
+            node = node.setdefault(parent, {})
+            if not isinstance(node, dict):
+                raise SystemExit(f"--set {key}: {parent} is given a value and nested keys both")
+        node[leaf] = yaml.safe_load(value)
     return overrides
+
+
+def merge(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, Any]:
+    """
+    ``base`` with ``overrides`` applied, neither changed: a dict value merges key by key into the dict ``base`` holds
+    under the same key (``generator_kwargs``, ``policy_kwargs``); any other value replaces it.
+    """
+    from sb3_pride.common.utils import merge_kwargs
+
+    return merge_kwargs(base, overrides)
+
+
+def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
+    """
+    The named variants of a tier, ``hyperparams/<tier>/variants.yml`` (``hyperparams/variants.yml`` for ``paper``):
+    ``{label: {"algo", "name", "description", "overrides", "tag"}}``, the name and tag defaulting to the label ({}
+    without the file).
+    """
+    import yaml
+
+    from sb3_pride.zoo import hyperparams_dir
+
+    path = hyperparams_dir() / ("" if tier == "paper" else tier) / "variants.yml"
+    if not path.exists():
+        return {}
+    variants = yaml.safe_load(path.read_text()) or {}
+    for label, entry in variants.items():
+        unknown = sorted(set(entry) - {"algo", "name", "description", "overrides", "tag"})
+        if unknown or entry.get("algo") not in ALGOS:
+            problem = f"unknown keys {unknown}" if unknown else f"algo must be one of {ALGOS}, got {entry.get('algo')!r}"
+            raise SystemExit(f"{path}: variant {label!r}: {problem}")
+        entry.setdefault("overrides", {})
+        entry.setdefault("tag", label)
+        entry.setdefault("description", "")
+        entry.setdefault("name", label)
+    return variants
 
 
 def algorithm_class(algo: str) -> type:
@@ -138,6 +189,30 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     return specs
 
 
+def provenance() -> dict[str, Any]:
+    """
+    What code made a run: the installed ``sb3_pride`` version, the git commit of this tree and whether the tree had
+    uncommitted changes (``None`` outside a git checkout).
+    """
+    from importlib import metadata
+
+    try:
+        version = metadata.version("sb3_pride")
+    except metadata.PackageNotFoundError:
+        version = None
+
+    def git(*argv: str) -> str | None:
+        try:
+            done = subprocess.run(["git", *argv], cwd=ROOT, capture_output=True, text=True, timeout=30)
+        except (OSError, subprocess.TimeoutExpired):
+            return None
+        return done.stdout.strip() if done.returncode == 0 else None
+
+    commit = git("rev-parse", "HEAD")
+    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
+    return {"sb3_pride": version, "commit": commit, "dirty": None if status is None else bool(status)}
+
+
 def system_info() -> dict[str, str]:
     """
     SB3's system info (OS, Python, SB3, PyTorch, NumPy, Gymnasium versions) plus the simulators' versions and the CPU:
@@ -181,7 +256,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         kwargs["max_feedback"] = spec["feedback"]
     if spec["algo"] == "pride":
         kwargs["synthetic_ratio"] = spec["ratio"]
-    kwargs.update(spec.get("overrides") or {})
+    kwargs = merge(kwargs, spec.get("overrides") or {})
     n_timesteps = spec["timesteps"] or n_timesteps
     algo = algorithm_class(spec["algo"])
     env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
@@ -191,7 +266,11 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     # SB3's logger to progress.csv: reward-model accuracy and true-reward correlation, diffusion fidelity, losses
     model.set_logger(configure(str(folder), ["csv"]))
     (folder / "settings.json").write_text(
-        json.dumps({**spec, "n_timesteps": n_timesteps, "kwargs": kwargs, "system": system_info()}, indent=2, default=str)
+        json.dumps(
+            {**spec, "n_timesteps": n_timesteps, "kwargs": kwargs, "version": provenance(), "system": system_info()},
+            indent=2,
+            default=str,
+        )
     )
     evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
                               log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
@@ -211,9 +290,45 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     (folder / "result.json").write_text(json.dumps(result, indent=2))
 
 
+def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
+    """
+    Run every spec whose folder under ``out`` has no ``result.json`` yet, ``jobs`` at a time, each in its own process
+    (this script with ``--worker``); return the number of runs that failed.
+    """
+    todo = [spec for spec in specs if not (out / run_name(spec) / "result.json").exists()]
+    total = len(specs)
+    print(f"{total} runs in the grid, {total - len(todo)} done, {len(todo)} to run, {jobs} at a time", flush=True)
+    running: list[tuple[subprocess.Popen, dict, float]] = []
+    finished, failed = total - len(todo), 0
+    while todo or running:
+        while todo and len(running) < jobs:
+            spec = todo.pop(0)
+            (out / run_name(spec)).mkdir(parents=True, exist_ok=True)
+            with open(out / run_name(spec) / "log.txt", "w") as log:
+                command = [sys.executable, __file__, "--out", str(out), "--worker", json.dumps(spec)]
+                running.append((subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), spec, time.time()))
+            print(f"started {run_name(spec)}", flush=True)
+        time.sleep(2)
+        for process, spec, started in list(running):
+            if process.poll() is None:
+                continue
+            running.remove((process, spec, started))
+            finished += 1
+            result_path = out / run_name(spec) / "result.json"
+            if process.returncode == 0 and result_path.exists():
+                result = json.loads(result_path.read_text())
+                success = "" if result["final_success"] is None else f", success {result['final_success']:.2f}"
+                print(f"[{finished}/{total}] {run_name(spec)}: {time.time() - started:.0f} s, "
+                      f"final return {result['final_return']:.1f}{success}", flush=True)  # fmt: skip
+            else:
+                failed += 1
+                print(f"[{finished}/{total}] {run_name(spec)}: FAILED (rc {process.returncode}), see its log.txt", flush=True)
+    return failed
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--algos", nargs="+", default=["pride", "pebble"], choices=["pride", "pebble", "sac"])
+    parser.add_argument("--algos", nargs="+", default=["pride", "pebble"], choices=list(ALGOS))
     parser.add_argument("--tasks", nargs="+", default=["walker-walk"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0])
     parser.add_argument("--feedback", nargs="+", type=int, help="max_feedback values (default: each task's YAML value)")
@@ -229,7 +344,8 @@ def make_parser() -> argparse.ArgumentParser:
         nargs="*",
         default=[],
         metavar="KEY=VALUE",
-        help="override any constructor argument of the YAML, e.g. gradient_steps=2 (applied to every algo; each must take it)",
+        help="override any constructor argument of the YAML, e.g. gradient_steps=2 or generator_kwargs.train_steps=2000 "
+        "(a dotted key changes one entry of a nested dict; applied to every algo; each must take it)",
     )
     parser.add_argument("--tag", default="", help="suffix of the run names: tells variants made with --set apart")
     parser.add_argument("--jobs", type=int, default=1, help="runs in parallel (one process each)")
@@ -248,33 +364,7 @@ def main() -> None:
         worker(spec, args.out / run_name(spec))
         return
 
-    todo = [spec for spec in grid(args) if not (args.out / run_name(spec) / "result.json").exists()]
-    total = len(grid(args))
-    print(f"{total} runs in the grid, {total - len(todo)} done, {len(todo)} to run, {args.jobs} at a time", flush=True)
-    running: list[tuple[subprocess.Popen, dict, float]] = []
-    finished = total - len(todo)
-    while todo or running:
-        while todo and len(running) < args.jobs:
-            spec = todo.pop(0)
-            (args.out / run_name(spec)).mkdir(parents=True, exist_ok=True)
-            log = open(args.out / run_name(spec) / "log.txt", "w")
-            command = [sys.executable, __file__, "--out", str(args.out), "--worker", json.dumps(spec)]
-            running.append((subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), spec, time.time()))
-            print(f"started {run_name(spec)}", flush=True)
-        time.sleep(2)
-        for process, spec, started in list(running):
-            if process.poll() is None:
-                continue
-            running.remove((process, spec, started))
-            finished += 1
-            result_path = args.out / run_name(spec) / "result.json"
-            if process.returncode == 0 and result_path.exists():
-                result = json.loads(result_path.read_text())
-                success = "" if result["final_success"] is None else f", success {result['final_success']:.2f}"
-                print(f"[{finished}/{total}] {run_name(spec)}: {time.time() - started:.0f} s, "
-                      f"final return {result['final_return']:.1f}{success}", flush=True)  # fmt: skip
-            else:
-                print(f"[{finished}/{total}] {run_name(spec)}: FAILED (rc {process.returncode}), see its log.txt", flush=True)
+    run_specs(grid(args), args.out, args.jobs)
 
 
 if __name__ == "__main__":

@@ -2,7 +2,8 @@
 Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identical networks, one process.
 
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
-    python benchmarks/speed.py --algos pebble pride --variant on_top synthetic_on_top=true --timesteps 25000
+    python benchmarks/speed.py --algos pebble pride --variant rows_on_top --timesteps 25000
+    python benchmarks/speed.py --algos pebble pride --variant wide generator_kwargs.width=512 --timesteps 25000
 
 PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
 feedback budget for the shorter run; ``--as-tier`` runs the tier's own run instead (50k steps on walker-walk, the
@@ -22,12 +23,12 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np
 import torch as th
-from run import parse_overrides
+from run import load_variants, merge, parse_overrides
 from stable_baselines3 import SAC
 
 import sb3_pride
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
-from sb3_pride.pride.callbacks import DiffusionCallback
+from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
 #: the CPU tier (hyperparams/cpu/): 256 × 2 networks, batch 256, one update per step; this benchmark's run is
@@ -56,8 +57,8 @@ class TimedFeedback(FeedbackCallback):
         return result
 
 
-class TimedDiffusion(DiffusionCallback):
-    """The diffusion callback, its training and generation times read from what it logs."""
+class TimedDiffusion(GeneratorCallback):
+    """The generator callback, its training and generation times read from what it logs."""
 
     def _on_step(self) -> bool:
         retrains = self.model.diffusion_retrains
@@ -75,18 +76,31 @@ class TimedDiffusion(DiffusionCallback):
 TIMES: dict[str, float] = defaultdict(float)
 
 
-def parse_variant(words: list[str]) -> tuple[str, dict[str, Any]]:
-    """``--variant LABEL KEY=VALUE ...`` into ``("pride[LABEL]", {KEY: VALUE})``, values read as YAML."""
-    if len(words) < 2:
-        raise SystemExit(f"--variant takes a label and at least one key=value, got {words!r}")
-    return f"pride[{words[0]}]", parse_overrides(words[1:])
+def parse_variant(words: list[str], variants: dict[str, dict[str, Any]] | None = None) -> tuple[str, str, dict[str, Any]]:
+    """
+    ``--variant LABEL [KEY=VALUE ...]`` into ``("algo[LABEL]", algo, overrides)``: a label of
+    ``hyperparams/cpu/variants.yml`` brings its algorithm and overrides (KEY=VALUE pairs change them further); any other
+    label is PRIDE with the KEY=VALUE pairs (values read as YAML, dotted keys into nested dicts).
+    """
+    variants = load_variants("cpu") if variants is None else variants
+    if not words:
+        raise SystemExit("--variant takes a label and key=value pairs")
+    label, pairs = words[0], words[1:]
+    if label in variants:
+        algo, overrides = variants[label]["algo"], merge(variants[label]["overrides"], parse_overrides(pairs))
+    elif pairs:
+        algo, overrides = "pride", parse_overrides(pairs)
+    else:
+        known = ", ".join(sorted(variants))
+        raise SystemExit(f"--variant {label}: not a variant of hyperparams/cpu/variants.yml ({known}); give key=value pairs")
+    return f"{algo}[{label}]", algo, overrides
 
 
 def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False, **overrides: Any) -> dict:
     th.set_num_threads(1)
     TIMES.clear()
     cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
-    model = cls("MlpPolicy", env_id, seed=seed, **{**tier_kwargs(algo, env_id, as_tier), **overrides})
+    model = cls("MlpPolicy", env_id, seed=seed, **merge(tier_kwargs(algo, env_id, as_tier), overrides))
     if algo != "sac":
         timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
         model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
@@ -112,28 +126,31 @@ def main() -> None:
         nargs="+",
         action="append",
         default=[],
-        metavar="LABEL KEY=VALUE",
-        help="also run PRIDE with these settings changed, reported as pride[LABEL] (repeatable)",
+        metavar="LABEL [KEY=VALUE]",
+        help="also run a variant of hyperparams/cpu/variants.yml, or PRIDE with these settings changed, reported as "
+        "algo[LABEL] (repeatable)",
     )
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
-    variants = dict(parse_variant(words) for words in args.variant)
+    variants = {name: (algo, overrides) for name, algo, overrides in map(parse_variant, args.variant)}
     algos = args.algos + list(variants)
     if args.timesteps is None:
         args.timesteps = tier_timesteps(args.env) if args.as_tier else 15_000
 
     results: dict[str, list[dict]] = defaultdict(list)
     for repeat in range(args.repeats):
-        for algo in algos:  # a variant's label runs PRIDE with its settings changed
-            seed, changed = args.seed + repeat, variants.get(algo, {})
-            kind = "pride" if algo in variants else algo
+        for algo in algos:  # a variant's label runs its algorithm with its settings changed
+            seed = args.seed + repeat
+            kind, changed = variants.get(algo, (algo, {}))
             results[algo].append(run(kind, args.env, args.timesteps, seed, args.as_tier, **changed))
             print(f"repeat {repeat} {algo}: {results[algo][-1]['seconds']:.1f} s", flush=True)
     medians = {
         algo: {key: float(np.median([r.get(key, 0.0) for r in runs])) for key in runs[0]} for algo, runs in results.items()
     }
     kwargs = {algo: tier_kwargs(algo, args.env, args.as_tier) for algo in args.algos}
-    kwargs.update({algo: {**tier_kwargs("pride", args.env, args.as_tier), **changed} for algo, changed in variants.items()})
+    kwargs.update(
+        {name: merge(tier_kwargs(algo, args.env, args.as_tier), changed) for name, (algo, changed) in variants.items()}
+    )
     report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "as_tier": args.as_tier,
               "seed": args.seed, "kwargs": kwargs, "runs": results, "medians": medians}  # fmt: skip
     for algo, median in medians.items():

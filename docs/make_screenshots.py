@@ -1,5 +1,5 @@
 """
-Screenshots of the WebTeacher's page, taken by headless Chromium mid-play during a real PEBBLE run (issue 10).
+Screenshots of the WebTeacher's page, taken by headless Chromium mid-play during a real PEBBLE run.
 
     MUJOCO_GL=egl python docs/make_screenshots.py        # writes docs/web_teacher_<task>.png
 """

@@ -8,7 +8,7 @@ Environments for preference-based RL benchmarks, registered with gymnasium on ``
   read at episode end to report a success rate, e.g. ``sb3_pride/button-press-v3``.
 
 Both record the simulator state of every step in ``info["render_state"]`` once a ``WebTeacher`` asks for it
-(``sb3_pride.human.RenderStates``), so that a person can watch the segments.
+(``sb3_pride.common.render_states.RenderStates``), so that a person can watch the segments.
 
 dm_control and Meta-World are imported only when an environment is made.
 """
@@ -20,7 +20,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_pride.human.render import RenderStates
+from sb3_pride.common.render_states import RenderStates
 
 NAMESPACE = "sb3_pride"
 

@@ -24,6 +24,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback
 
 from sb3_pride.pebble import PEBBLE
 from sb3_pride.pride import PRIDE
+from sb3_pride.pride.recipes import expand_recipe
 
 ZOO_ALGOS = {"pride": PRIDE, "pebble": PEBBLE}
 
@@ -54,9 +55,9 @@ ZOO_ONLY_KEYS = (
 
 def model_kwargs(config: Path, env_id: str) -> tuple[int, dict[str, Any]]:
     """``(n_timesteps, constructor kwargs)`` of a hyperparameter file's entry, for use without rl-zoo3
-    (``policy_kwargs`` strings evaluated as rl-zoo3 does; the ``policy`` key dropped)."""
+    (``policy_kwargs`` strings evaluated as rl-zoo3 does; a ``recipe`` expanded; the ``policy`` key dropped)."""
     with open(config) as file:
-        entry = dict(yaml.safe_load(file)[env_id])
+        entry = expand_recipe(yaml.safe_load(file)[env_id])
     n_timesteps = int(entry["n_timesteps"])
     kwargs = {key: value for key, value in entry.items() if key not in (*ZOO_ONLY_KEYS, "policy")}
     if isinstance(kwargs.get("policy_kwargs"), str):
@@ -85,14 +86,22 @@ def sample_pride_params(trial: Any, n_actions: int, n_envs: int, additional_args
         # on top of batch_size real rows, a minibatch holds batch_size / (1 - u) rows
         "synthetic_on_top": trial.suggest_categorical("synthetic_on_top", [False, True]),
         "diffusion_interval": trial.suggest_categorical("diffusion_interval", [2000, 5000, 10_000, 20_000]),
-        "diffusion_train_steps": trial.suggest_categorical("diffusion_train_steps", [500, 1000, 2000, 5000]),
         "synthetic_samples": trial.suggest_categorical("synthetic_samples", [5000, 20_000, 100_000]),
+        "generator_kwargs": {"train_steps": trial.suggest_categorical("train_steps", [500, 1000, 2000, 5000])},
     }
 
 
+#: trial parameters that are ``TransitionGenerator`` arguments (PRIDE's ``generator_kwargs``)
+GENERATOR_TRIAL_PARAMS = ("train_steps",)
+
+
 def convert_params(sampled: dict[str, Any]) -> dict[str, Any]:
-    """Sampled values are constructor arguments already (used by ``--trial-id`` to reload a trial)."""
-    return dict(sampled)
+    """A trial's sampled values as constructor arguments (used by ``--trial-id`` to reload a trial)."""
+    kwargs = {key: value for key, value in sampled.items() if key not in GENERATOR_TRIAL_PARAMS}
+    generator = {key: value for key, value in sampled.items() if key in GENERATOR_TRIAL_PARAMS}
+    if generator:
+        kwargs["generator_kwargs"] = generator
+    return kwargs
 
 
 class _InferenceLoader:
@@ -118,6 +127,14 @@ def _continue_step_count(manager_class: type) -> type:
     """
 
     class ExperimentManager(manager_class):  # type: ignore[misc, valid-type]
+        def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
+            # a `recipe:` (sb3_pride.pride.recipes) becomes the settings it names, the entry's own on top
+            hyperparams, saved = super().read_hyperparameters()
+            if self.algo in ZOO_ALGOS and "recipe" in hyperparams:
+                hyperparams = expand_recipe(hyperparams)
+                saved = type(saved)((key, hyperparams[key]) for key in sorted(hyperparams))
+            return hyperparams, saved
+
         def create_callbacks(self) -> None:
             super().create_callbacks()
             if self.algo in ZOO_ALGOS and self.save_replay_buffer:

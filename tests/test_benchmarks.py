@@ -2,6 +2,7 @@
 otherwise; pooled comparisons do not depend on the order of the folders."""
 
 import importlib.util
+import inspect
 import json
 import sys
 from pathlib import Path
@@ -136,3 +137,275 @@ def test_only_keeps_the_named_configurations_and_names_an_unknown_one(plot, tmp_
         plot.main()
     assert "--only: no runs labeled ['PRIDE (400 queries)']" in capsys.readouterr().err
     assert not (tmp_path / "never").exists()
+
+
+# --- grid files, variants, provenance and the results page ---------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def grid():
+    return load_script("grid")
+
+
+@pytest.fixture(scope="module")
+def page():
+    return load_script("results_page")
+
+
+def write_grid(folder: Path, text: str) -> Path:
+    path = folder / "grid.yml"
+    path.write_text(text)
+    return path
+
+
+def test_a_grid_file_expands_to_run_py_specs_with_its_variants_tags(grid, tmp_path):
+    """Configurations × tasks × seeds × budgets × ratios, seeds outermost; a variant's runs carry its tag (the names of
+    the committed run folders), a plain algorithm's none; PEBBLE ignores the ratio."""
+    path = write_grid(tmp_path, """
+runs:
+  - configurations: [pebble, rows_in_place, rows_on_top]
+    tasks: [walker-walk]
+    seeds: 0-1
+    feedback: [400]
+    ratios: [0.5, 0.25]
+""")  # fmt: skip
+    specs = grid.expand(grid.load_grid(path))
+    assert [grid.run.run_name(spec) for spec in specs] == [
+        "pebble_walker-walk_s0_fb400",
+        "pride_walker-walk_s0_fb400_u0.5_faithful_steps4000",
+        "pride_walker-walk_s0_fb400_u0.25_faithful_steps4000",
+        "pride_walker-walk_s0_fb400_u0.5_on_top2",
+        "pride_walker-walk_s0_fb400_u0.25_on_top2",
+        "pebble_walker-walk_s1_fb400",
+        "pride_walker-walk_s1_fb400_u0.5_faithful_steps4000",
+        "pride_walker-walk_s1_fb400_u0.25_faithful_steps4000",
+        "pride_walker-walk_s1_fb400_u0.5_on_top2",
+        "pride_walker-walk_s1_fb400_u0.25_on_top2",
+    ]
+    in_place = specs[1]
+    assert in_place["configuration"] == "rows_in_place" and in_place["tier"] == "cpu" and in_place["eval_freq"] == 5000
+    assert in_place["overrides"]["generator_kwargs"]["train_steps"] == 4000
+    assert specs[3]["overrides"] == {"synthetic_on_top": True}
+
+
+def test_budget_and_ratio_left_out_of_a_grid_are_each_tasks_yaml_values(grid, tmp_path):
+    path = write_grid(
+        tmp_path, "runs:\n  - {configurations: [pride, pebble], tasks: [cheetah-run, button-press-v3], seeds: [3]}\n"
+    )
+    names = [grid.run.run_name(spec) for spec in grid.expand(grid.load_grid(path))]
+    assert names == [
+        "pride_cheetah-run_s3_fb400_u0.25",
+        "pebble_cheetah-run_s3_fb400",
+        "pride_button-press-v3_s3_fb2000_u0.25",
+        "pebble_button-press-v3_s3_fb2000",
+    ]
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("runs:\n  - {configurations: [no_such_variant], tasks: [walker-walk], seeds: [0]}\n",
+         "runs.0.: unknown configuration 'no_such_variant': neither an algorithm"),
+        ("runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: [0], colour: red}\n",
+         "runs.0.: unknown key colour .a block takes"),
+        ("jobs: 2\nruns:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: [0]}\n",
+         "grid.yml: unknown key jobs .a grid file takes"),
+        ("runs:\n  - {configurations: [pebble], tasks: [walker-walk]}\n", "runs.0.: missing seeds"),
+        ("runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: first}\n", "seeds must be a list"),
+        ("tasks: [walker-walk]\n", "a 'runs' list of blocks"),
+    ],
+)  # fmt: skip
+def test_a_bad_grid_file_names_the_file_and_what_is_wrong(grid, tmp_path, text, message):
+    path = write_grid(tmp_path, text)
+    with pytest.raises(SystemExit, match=message):
+        grid.expand(grid.load_grid(path))
+
+
+def test_a_variant_with_an_argument_its_algorithm_does_not_take_is_named_before_any_run(grid, tmp_path):
+    path = write_grid(tmp_path, "runs:\n  - {configurations: [odd], tasks: [walker-walk], seeds: [0]}\n")
+    variants = {"odd": {"algo": "pebble", "tag": "odd", "overrides": {"synthetic_ratio_typo": 1}, "description": ""}}
+    specs = grid.expand(grid.load_grid(path), variants)
+    with pytest.raises(SystemExit, match="variant 'odd': --set synthetic_ratio_typo: not an argument of PEBBLE"):
+        grid.check(specs)
+
+
+def test_every_variant_is_well_formed_and_every_committed_grid_file_expands():
+    """variants.yml loads (known keys, a known algorithm each); every grid file of benchmarks/grids/ expands."""
+    grid = load_script("grid")
+    variants = grid.run.load_variants("cpu")
+    assert {"rows_in_place", "rows_on_top", "paper", "pebble_utd2"} <= set(variants)
+    assert variants["rows_in_place"]["tag"] == "faithful_steps4000" and variants["paper"]["tag"] == "paper"
+    files = sorted((ROOT / "benchmarks" / "grids").glob("*.yml"))
+    assert files
+    for path in files:
+        assert grid.expand(grid.load_grid(path)), path
+
+
+def test_the_committed_grid_files_have_all_their_runs_done(grid, capsys):
+    """Each committed table's runs are in benchmarks/results/runs/ under the names the grid gives them: re-running a
+    grid file finds nothing to do (and with more seeds, runs only the new ones)."""
+    for path in sorted((ROOT / "benchmarks" / "grids").glob("*.yml")):
+        grid.main([str(path), "--dry-run"])
+        last = capsys.readouterr().out.strip().splitlines()[-1]
+        assert " 0 to run" in last, f"{path.name}: {last}"
+
+
+#: the generator's arguments before they moved into generator_kwargs: committed runs record these names
+GENERATOR_OLD_NAMES = {
+    "width": "diffusion_width", "n_blocks": "diffusion_blocks", "train_steps": "diffusion_train_steps",
+    "sample_steps": "diffusion_sample_steps", "warm_start": "diffusion_warm_start",
+    "normalization": "diffusion_normalization", "diffusion_kwargs": "diffusion_kwargs",
+    "model_state_change": "model_state_change", "generation": "generation", "anchor_noise": "anchor_noise",
+    "window": "diffusion_window", "keep_quantile": "synthetic_keep_quantile", "filter": "synthetic_filter",
+    "fidelity_check": "fidelity_check", "dynamics_kwargs": "dynamics_kwargs",
+}  # fmt: skip
+
+
+def flat_kwargs(kwargs: dict) -> dict:
+    """Constructor kwargs in one namespace: generator_kwargs spread out under the older flat names."""
+    flat = dict(kwargs)
+    for key, value in (flat.pop("generator_kwargs", None) or {}).items():
+        flat[GENERATOR_OLD_NAMES.get(key, key)] = value
+    if isinstance(flat.get("policy_kwargs"), dict):  # SB3 adds use_sde=False to what it was given
+        flat["policy_kwargs"] = {k: v for k, v in flat["policy_kwargs"].items() if k != "use_sde"}
+    return flat
+
+
+def constructor_defaults(run, algo: str) -> dict:
+    """The algorithm's keyword defaults (its own and its parents'), PRIDE's generator_kwargs spelled out."""
+    defaults = {}
+    for cls in reversed(run.algorithm_class(algo).__mro__):
+        if "__init__" in vars(cls) and cls is not object:
+            parameters = inspect.signature(cls.__init__).parameters.values()
+            defaults.update({p.name: p.default for p in parameters if p.default is not p.empty})
+    if algo == "pride":
+        from sb3_pride.common.generator import TransitionGenerator
+
+        parameters = inspect.signature(TransitionGenerator.__init__).parameters.values()
+        defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
+    return defaults
+
+
+def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(grid):
+    """For every run of every committed grid file, the settings the run recorded equal what the grid would run today
+    (the task's YAML entry, the variant's overrides merged in, the algorithm's defaults for the rest): a grid re-run
+    makes the same configuration, and a variant label means what the committed table's runs were."""
+    mismatches = []
+    for path in sorted((ROOT / "benchmarks" / "grids").glob("*.yml")):
+        for spec in grid.expand(grid.load_grid(path)):
+            _, kwargs = grid.run.yaml_entry(spec["tier"], spec["algo"], spec["task"])
+            kwargs = grid.run.merge(kwargs, spec["overrides"])
+            if spec["algo"] != "sac":
+                kwargs["max_feedback"] = spec["feedback"]
+            if spec["algo"] == "pride":
+                kwargs["synthetic_ratio"] = spec["ratio"]
+            defaults = flat_kwargs(constructor_defaults(grid.run, spec["algo"]))
+            settings = json.loads((ROOT / "benchmarks/results/runs" / grid.run.run_name(spec) / "settings.json").read_text())
+            now, then = flat_kwargs(kwargs), flat_kwargs(settings["kwargs"])
+            differ = {k: (now.get(k, defaults.get(k)), then.get(k, defaults.get(k))) for k in {*now, *then}
+                      if now.get(k, defaults.get(k)) != then.get(k, defaults.get(k))}  # fmt: skip
+            if differ:
+                mismatches.append(f"{grid.run.run_name(spec)}: {differ}")
+    assert not mismatches, "\n".join(mismatches[:20])
+
+
+def test_a_grid_runs_only_the_runs_without_a_result(grid, tmp_path, monkeypatch):
+    """Resumable: a run folder with result.json is skipped; the others start, one process each."""
+    path = write_grid(tmp_path, "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-2, feedback: [400]}\n")
+    out = tmp_path / "runs"
+    (out / "pebble_walker-walk_s1_fb400").mkdir(parents=True)
+    (out / "pebble_walker-walk_s1_fb400" / "result.json").write_text("{}")
+    started = []
+
+    class FakeProcess:
+        """Stands for a worker process: writes the run's result at once."""
+
+        returncode = 0
+
+        def __init__(self, command, **_):
+            spec = json.loads(command[command.index("--worker") + 1])
+            started.append(grid.run.run_name(spec))
+            result = {"final_return": 1.0, "final_success": None}
+            (out / grid.run.run_name(spec) / "result.json").write_text(json.dumps(result))
+
+        def poll(self):
+            return 0
+
+    monkeypatch.setattr(grid.run.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(grid.run.time, "sleep", lambda seconds: None)
+    grid.main([str(path), "--out", str(out), "--jobs", "2"])
+    assert started == ["pebble_walker-walk_s0_fb400", "pebble_walker-walk_s2_fb400"]
+    started.clear()
+    grid.main([str(path), "--out", str(out)])
+    assert started == []
+
+
+def test_dotted_overrides_merge_into_the_yaml_entrys_nested_dict(run):
+    overrides = run.parse_overrides(["generator_kwargs.train_steps=2000", "policy_kwargs.net_arch=[64, 64]", "batch_size=512"])
+    assert overrides == {"generator_kwargs": {"train_steps": 2000}, "policy_kwargs": {"net_arch": [64, 64]}, "batch_size": 512}
+    base = {"generator_kwargs": {"width": 256, "train_steps": 4000}, "policy_kwargs": {"net_arch": [256, 256]}, "tau": 0.005}
+    merged = run.merge(base, overrides)
+    assert merged == {"generator_kwargs": {"width": 256, "train_steps": 2000}, "policy_kwargs": {"net_arch": [64, 64]},
+                      "tau": 0.005, "batch_size": 512}  # fmt: skip
+    assert base["generator_kwargs"]["train_steps"] == 4000  # the YAML's dict is not changed
+    run.check_overrides(run.parse_overrides(["policy_kwargs.net_arch=[64]"]), ["pebble"])  # the top key is checked
+    with pytest.raises(SystemExit, match="--set takes key=value"):
+        run.parse_overrides(["generator_kwargs.=3"])
+
+
+def test_a_run_records_the_package_version_the_commit_and_the_libraries(run, tmp_path):
+    """settings.json: the sb3_pride version, the git commit and whether the tree was dirty, and library versions."""
+    from importlib import metadata
+
+    spec = dict(algo="sac", task="walker-walk", seed=0, feedback=None, ratio=None, tier="cpu", eval_freq=200,
+                eval_episodes=1, timesteps=200, tag="", overrides={"policy_kwargs": {"net_arch": [32, 32]}})  # fmt: skip
+    run.worker(spec, tmp_path / "run")
+    settings = json.loads((tmp_path / "run" / "settings.json").read_text())
+    assert settings["version"]["sb3_pride"] == metadata.version("sb3_pride")
+    assert len(settings["version"]["commit"]) == 40 and isinstance(settings["version"]["dirty"], bool)
+    assert {"Stable-Baselines3", "PyTorch", "Gymnasium", "Numpy", "mujoco", "dm-control", "CPU"} <= set(settings["system"])
+    assert settings["kwargs"]["policy_kwargs"]["net_arch"] == [32, 32]
+    assert json.loads((tmp_path / "run" / "result.json").read_text())["final_return"] is not None
+
+
+def test_speed_takes_a_variant_label(monkeypatch):
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    speed = load_script("speed")
+    assert speed.parse_variant(["rows_on_top"]) == ("pride[rows_on_top]", "pride", {"synthetic_on_top": True})
+    name, algo, overrides = speed.parse_variant(["pebble_utd2", "batch_size=512"])
+    assert (name, algo, overrides) == ("pebble[pebble_utd2]", "pebble", {"gradient_steps": 2, "batch_size": 512})
+    assert speed.parse_variant(["wide", "generator_kwargs.width=512"])[2] == {"generator_kwargs": {"width": 512}}
+    with pytest.raises(SystemExit, match="--variant nothing: not a variant"):
+        speed.parse_variant(["nothing"])
+
+
+def test_the_generated_results_files_are_in_sync_with_results_json(page):
+    """benchmark.md, docs/_generated/results.md and the README's summary are rendered from results.json, the one
+    file every result number comes from (re-made with python benchmarks/results_page.py)."""
+    data = json.loads(page.RESULTS.read_text())
+    assert page.PAGE.read_text() == page.render_page(data)
+    assert page.DOCS_PAGE.read_text() == page.render_docs(data)
+    readme = page.README.read_text()
+    assert page.replace_block(readme, page.render_summary(data), "README.md") == readme
+
+
+def test_results_json_holds_every_run_of_the_grid_files(page):
+    """The data file counts exactly the committed runs of the grid files (their final returns, seed by seed): a run
+    added, removed or re-run without re-making the page fails here. The rliable intervals are not recomputed."""
+    data = json.loads(page.RESULTS.read_text())
+    rows, _ = page.collect(sorted(page.GRIDS.glob("*.yml")))
+    recorded = {(row["task"], row["configuration"], row["feedback"], row["ratio"]): row for rows_ in data["tasks"].values()
+                for row in rows_}  # fmt: skip
+    assert set(recorded) == set(rows)
+    for key, row in rows.items():
+        finals = [round(float(run["curve"]["true_return"][-1]), 3) for run in page.runs_of(row)]
+        assert recorded[key]["final_return"]["per_seed"] == finals, key
+        assert recorded[key]["command"] == f"python benchmarks/grid.py {row['grid']}"
+
+
+def test_the_readme_summary_needs_its_markers(page):
+    with pytest.raises(SystemExit, match="needs one <!-- results:start --> line"):
+        page.replace_block("# README\n\nno markers here\n", "| table |\n", "README.md")
+    assert page.replace_block("a\n<!-- results:start -->\nold\n<!-- results:end -->\nb\n", "new\n", "x") == (
+        "a\n<!-- results:start -->\nnew\n<!-- results:end -->\nb\n"
+    )

@@ -1,4 +1,4 @@
-"""SB3's contract, checked with environments this project did not write (issue 11): float64 gymnasium MuJoCo envs,
+"""SB3's contract, checked with environments this project did not write: float64 gymnasium MuJoCo envs,
 early-terminating envs, SB3's buffer attributes, the critic reset, SAC's arguments, set_env/load checks, episode ends."""
 
 import os
@@ -15,18 +15,19 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
+from sb3_pride.common.utils import merge_kwargs
 from tests.test_pride import PAPER_MIXING
 
 #: a diffusion phase small enough for tests, retraining from the first feedback session on
-TINY_DIFFUSION = dict(
-    **PAPER_MIXING,
-    diffusion_interval=200,
-    synthetic_samples=500,
-    diffusion_width=32,
-    diffusion_blocks=1,
-    diffusion_train_steps=50,
-    diffusion_sample_steps=4,
-    dynamics_kwargs=dict(width=16, train_steps=20),
+TINY_DIFFUSION = merge_kwargs(
+    PAPER_MIXING,
+    dict(
+        diffusion_interval=200,
+        synthetic_samples=500,
+        generator_kwargs=dict(
+            width=32, n_blocks=1, train_steps=50, sample_steps=4, dynamics_kwargs=dict(width=16, train_steps=20)
+        ),
+    ),
 )
 
 

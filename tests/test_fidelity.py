@@ -8,7 +8,7 @@ from stable_baselines3.common.logger import configure
 
 from sb3_pride import PRIDE
 from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity
-from tests.test_pride import TINY_DIFFUSION
+from tests.test_pride import tiny_pride
 
 #: a dynamics ensemble small enough for tests
 TINY_DYNAMICS = dict(width=64, train_steps=300)
@@ -88,14 +88,15 @@ def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_pat
     """Every retrain logs the ratio; a generator whose s' are off by two typical steps reads far above 1."""
     ratios = {}
     for name, steps in (("faithful", 0.0), ("corrupted", 2.0)):
-        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, dynamics_kwargs=TINY_DYNAMICS, **tiny_kwargs, **TINY_DIFFUSION)
+        kwargs = tiny_pride(generator_kwargs=dict(dynamics_kwargs=TINY_DYNAMICS))
+        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **kwargs)
         rng = np.random.default_rng(0)
 
         def generator(real, n, steps=steps, rng=rng):  # real transitions, next states corrupted by `steps`
             anchors = rng.integers(0, len(real), size=n)
             return corrupt_next_states(real[anchors], steps, rng), anchors
 
-        model.generate = generator
+        model.generator.generate = generator  # type: ignore[method-assign]
         model.set_logger(configure(str(tmp_path / name), ["csv"]))
         model.learn(800, log_interval=1)  # retrains at 300 and 600
         progress = pd.read_csv(tmp_path / name / "progress.csv")

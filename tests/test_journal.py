@@ -1,4 +1,4 @@
-"""Crash-safe runs (issue 11 §2): the preference journal, checkpoints written whole, and a real SIGKILL + resume."""
+"""Crash-safe runs: the preference journal, checkpoints written whole, and a real SIGKILL + resume."""
 
 import json
 import os
@@ -51,7 +51,7 @@ def test_a_new_model_takes_the_journals_answers_back_instead_of_asking(tiny_kwar
     teacher = CountingTeacher()
     tiny_kwargs.update(teacher=teacher)
     again = PEBBLE("MlpPolicy", "Pendulum-v1", seed=1, preference_journal=journal, **tiny_kwargs)
-    again.learn(650)  # sessions 1-2 from the journal, 3-4 asked
+    again.learn(650)  # feedback sessions 1-2 from the journal, 3-4 asked
     assert teacher.asked == 20 and again.feedback_asked == 40 and again.journal_entries == 40
     np.testing.assert_array_equal(again.preferences.labels, journal_labels(journal))
     ids = [entry.id for entry in PreferenceJournal(journal).read()]
@@ -134,12 +134,13 @@ def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tm
     child = subprocess.Popen([sys.executable, "-c", textwrap.dedent(script)], stderr=subprocess.PIPE, text=True)
     journal = tmp_path / "preferences.jsonl"
     deadline = time.monotonic() + 300
-    # sessions at steps 200, 300, 400, 500; checkpoints at 150, 300, 450: session 4 is journaled, not checkpointed
+    # feedback sessions at steps 200, 300, 400, 500; checkpoints at 150, 300, 450: the fourth is journaled, not
+    # checkpointed
     while len(PreferenceJournal(journal).read()) < 40:
         assert child.poll() is None, child.stderr.read()
         assert time.monotonic() < deadline, "the worker never reached its fourth feedback session"
         time.sleep(0.2)
-    time.sleep(1.0)  # let it run on towards session 5, which never gets its answers
+    time.sleep(1.0)  # let it run on towards the fifth feedback session, which never gets its answers
     os.kill(child.pid, signal.SIGKILL)
     child.wait()
     checkpoints = sorted(tmp_path.glob("rl_model_*_steps.zip"), key=lambda path: int(path.stem.split("_")[2]))
@@ -150,7 +151,7 @@ def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tm
     model.load_replay_buffer(tmp_path / "rl_model_replay_buffer_450_steps.pkl")
     assert model.journal_entries == 30 and len(model.preferences) == 30 and model.num_timesteps == 450
     model.learn(250, reset_num_timesteps=False)
-    # session 4 (step 500) came back from the journal; only session 5 (step 600) was asked
+    # feedback session 4 (step 500) came back from the journal; only the fifth (step 600) was asked
     assert teacher.asked == 10
     assert model.feedback_sessions == 5 and model.feedback_asked == 50 and model.journal_entries == 50
     np.testing.assert_array_equal(model.preferences.labels, journal_labels(journal))

@@ -71,12 +71,13 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
     """The reset updates after the first session (and every later update) use r̂, never r_int (B-Pref's
     update_after_reset). r_int is made 1000 per step: any of it reaching the reset would show."""
     from sb3_pride import PRIDE
+    from sb3_pride.common.utils import merge_kwargs
     from tests.test_pride import PAPER_MIXING
 
     if algo == "pride":
-        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_samples=256, diffusion_train_steps=5,
-                      diffusion_sample_steps=2, diffusion_width=16, diffusion_blocks=1, **PAPER_MIXING,
-                      **tiny_kwargs)  # fmt: skip
+        generator = dict(train_steps=5, sample_steps=2, width=16, n_blocks=1)
+        kwargs = merge_kwargs(PAPER_MIXING, dict(synthetic_samples=256, generator_kwargs=generator))
+        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs, **tiny_kwargs)
     else:
         model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.state_entropy = lambda obs, all_obs, update_stats=True: th.full((len(obs), 1), 1000.0)
@@ -151,8 +152,8 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
         for bad in (0, -5):
             with pytest.raises(ValueError, match=name):
                 PEBBLE("MlpPolicy", "Pendulum-v1", **{name: bad})
-    for bad in (0, -2, 1.5):  # SB3 would never train at 0
-        with pytest.raises(ValueError, match="gradient_steps must be a positive integer"):
+    for bad in (1.5, "1", True):
+        with pytest.raises(ValueError, match="gradient_steps must be an integer"):
             PEBBLE("MlpPolicy", "Pendulum-v1", gradient_steps=bad)
     with pytest.raises(ValueError, match="query_selection"):
         PEBBLE("MlpPolicy", "Pendulum-v1", query_selection="random")
@@ -210,3 +211,23 @@ def test_critic_diagnostics_change_no_training_run(tiny_kwargs):
         return th.nn.utils.parameters_to_vector(model.critic.parameters())
 
     th.testing.assert_close(critic_after(1), critic_after(10**9), rtol=0, atol=0)
+
+
+@pytest.mark.parametrize("algo", ["pebble", "pride"])
+def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo):
+    """SB3's gradient_steps=0: learn() collects and runs the feedback sessions but never calls train(); the user's own
+    loop does, through the same public methods the callbacks use."""
+    from sb3_pride import PRIDE
+    from tests.test_pride import TINY_DIFFUSION
+
+    extra = TINY_DIFFUSION if algo == "pride" else {}
+    model = (PRIDE if algo == "pride" else PEBBLE)("MlpPolicy", "Pendulum-v1", seed=0, gradient_steps=0, **tiny_kwargs,
+                                                    **extra)  # fmt: skip
+    actor = [p.detach().clone() for p in model.actor.parameters()]
+    model.learn(400)
+    assert model.feedback_sessions == 1 and model._n_updates == 0  # the critic reset's updates only touch the critic
+    assert all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
+    model.train(gradient_steps=5, batch_size=32)
+    assert model._n_updates == 5 and not all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
+    model.feedback_session()  # a session called from the user's loop
+    assert model.feedback_sessions == 2

@@ -5,21 +5,27 @@ from gymnasium import spaces
 from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
+from sb3_pride.common.utils import merge_kwargs
 
-#: a diffusion model small enough for tests
-# the paper's mixing (PRIDE()'s defaults delay it to step 10k): synthetic data from the first reward model on
+# the paper's mixing (PRIDE()'s defaults delay it to step 10k): synthetic data from the first reward model on, every
+# sample kept, fitted on all real transitions
 PAPER_MIXING = dict(
-    synthetic_on_top=False, synthetic_start=0, synthetic_ramp=0, diffusion_window=None, synthetic_keep_quantile=1.0
+    synthetic_on_top=False, synthetic_start=0, synthetic_ramp=0, generator_kwargs=dict(window=None, keep_quantile=1.0)
 )
-TINY_DIFFUSION = dict(
-    **PAPER_MIXING,
-    diffusion_interval=300,
-    synthetic_samples=2000,
-    diffusion_width=64,
-    diffusion_blocks=2,
-    diffusion_train_steps=200,
-    diffusion_sample_steps=8,
+#: PRIDE with a diffusion model small enough for tests
+TINY_DIFFUSION = merge_kwargs(
+    PAPER_MIXING,
+    dict(
+        diffusion_interval=300,
+        synthetic_samples=2000,
+        generator_kwargs=dict(width=64, n_blocks=2, train_steps=200, sample_steps=8),
+    ),
 )
+
+
+def tiny_pride(**changes):
+    """``TINY_DIFFUSION`` with ``changes`` (``generator_kwargs`` merged, not replaced)."""
+    return merge_kwargs(TINY_DIFFUSION, changes)
 
 
 def marked_dual_buffer(n_envs=2, ratio=0.25):
@@ -120,19 +126,19 @@ def test_save_load_predict_identical(tiny_kwargs, tmp_path):
     loaded = PRIDE.load(tmp_path / "pride")
     obs = np.random.default_rng(0).normal(size=(32, 3)).astype(np.float32)
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
-    for name, tensor in model.diffusion.state_dict().items():
-        assert th.equal(tensor, loaded.diffusion.state_dict()[name]), name
+    for name, tensor in model.generator.diffusion.state_dict().items():
+        assert th.equal(tensor, loaded.generator.diffusion.state_dict()[name]), name
     assert loaded.synthetic_ratio == 0.5 and loaded.diffusion_interval == 300
 
 
 def test_short_run_on_metaworld_with_a_whitened_diffusion(tiny_kwargs, tmp_path):
     tiny_kwargs.update(max_feedback=40)
-    model = PRIDE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, diffusion_normalization="whiten", **tiny_kwargs,
-                  **TINY_DIFFUSION)  # fmt: skip
+    model = PRIDE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, **tiny_kwargs,
+                  **tiny_pride(generator_kwargs=dict(normalization="whiten")))  # fmt: skip
     model.learn(700)
     assert model.diffusion_retrains == 2 and model.replay_buffer.synthetic.size() == 2000
     assert len(model.ep_success_buffer) == 1
-    rotation = model.diffusion.rotation
+    rotation = model.generator.diffusion.rotation
     assert th.allclose(rotation @ rotation.T, th.eye(len(rotation), device=rotation.device), atol=1e-4)  # orthonormal
     # the observation's previous frame: s' holds s's current frame exactly, and whitened samples keep that identity
     # (a zero-variance direction); per-dimension normalization breaks it (here by up to 0.37)
@@ -142,21 +148,25 @@ def test_short_run_on_metaworld_with_a_whitened_diffusion(tiny_kwargs, tmp_path)
     np.testing.assert_allclose(next_obs[:, 18:36], obs[:, :18], atol=1e-3)
     model.save(tmp_path / "pride")
     loaded = PRIDE.load(tmp_path / "pride")
-    assert loaded.diffusion_normalization == "whiten" and th.equal(loaded.diffusion.rotation, rotation)
+    assert loaded.generator.diffusion.normalization == "whiten" and th.equal(loaded.generator.diffusion.rotation, rotation)
 
 
 def test_bad_input_names_the_parameter():
     with pytest.raises(ValueError, match="synthetic_ratio"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.5)
-    with pytest.raises(ValueError, match=r"set diffusion_normalization, not diffusion_kwargs\['normalization'\]"):
-        PRIDE("MlpPolicy", "Pendulum-v1", diffusion_kwargs=dict(normalization="whiten"))
-    for name in ("diffusion_interval", "synthetic_samples", "diffusion_train_steps"):
+    with pytest.raises(ValueError, match=r"set the generator's normalization, not diffusion_kwargs\['normalization'\]"):
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(diffusion_kwargs=dict(normalization="whiten")))
+    for name in ("diffusion_interval", "synthetic_samples"):
         with pytest.raises(ValueError, match=name):
             PRIDE("MlpPolicy", "Pendulum-v1", **{name: 0})
+    with pytest.raises(ValueError, match="train_steps"):
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(train_steps=0))
+    with pytest.raises(ValueError, match="generator_kwargs must be valid TransitionGenerator arguments"):
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(diffusion_width=64))
 
 
 #: a dynamics ensemble small enough for tests
-TINY_DYNAMICS = dict(dynamics_kwargs=dict(width=64, train_steps=200))
+TINY_DYNAMICS = dict(width=64, train_steps=200)
 
 
 def record_draws(buffer: DualReplayBuffer) -> list[tuple[str, int]]:
@@ -228,7 +238,8 @@ def test_synthetic_on_top_trains_as_pebble_until_the_first_generation(tiny_kwarg
 
 def test_synthetic_on_top_rows_grow_with_the_ramp_of_u(tiny_kwargs):
     """While u ramps up, the synthetic rows on top grow from 0 to B·u/(1 − u) and the real rows stay batch_size."""
-    kwargs = {**tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS, "synthetic_ramp": 100, "synthetic_on_top": True}
+    kwargs = {**tiny_kwargs, **tiny_pride(generator_kwargs=dict(dynamics_kwargs=TINY_DYNAMICS)), "synthetic_ramp": 100,
+              "synthetic_on_top": True}  # fmt: skip
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs)
     model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
     drawn = record_draws(model.replay_buffer)
@@ -242,7 +253,8 @@ def test_synthetic_on_top_rows_grow_with_the_ramp_of_u(tiny_kwargs):
 
 def test_delayed_start_and_ramp_of_u(tiny_kwargs):
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs,
-                  **{**TINY_DIFFUSION, "synthetic_start": 600, "synthetic_ramp": 300}, **TINY_DYNAMICS)  # fmt: skip
+                  **tiny_pride(synthetic_start=600, synthetic_ramp=300,
+                               generator_kwargs=dict(dynamics_kwargs=TINY_DYNAMICS)))  # fmt: skip
     model.learn(500)  # reward model since 300, but no synthetic data before step 600
     assert model.diffusion_retrains == 0 and model.replay_buffer.synthetic.size() == 0
     model.learn(250, reset_num_timesteps=False)
@@ -260,10 +272,14 @@ def test_delayed_start_and_ramp_of_u(tiny_kwargs):
 
 def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
     model = PRIDE(
-        "MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **{**TINY_DIFFUSION, "diffusion_window": 200}, **TINY_DYNAMICS
+        "MlpPolicy",
+        "Pendulum-v1",
+        seed=0,
+        **tiny_kwargs,
+        **tiny_pride(generator_kwargs=dict(window=200, dynamics_kwargs=TINY_DYNAMICS)),
     )
     model.learn(450)
-    vectors = model.transition_vectors()
+    vectors = model.generator.transition_vectors(*model.real_transitions())
     buffer = model.real_buffer
     assert vectors.shape == (200, 7)
     np.testing.assert_array_equal(vectors[:, :3], buffer.observations[250:450, 0])
@@ -272,82 +288,71 @@ def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
 
 @pytest.mark.parametrize("synthetic_filter", ["dynamics", "reward"])
 def test_keep_quantile_keeps_what_the_filter_trusts(tiny_kwargs, synthetic_filter):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, synthetic_filter=synthetic_filter, **tiny_kwargs,
-                  **{**TINY_DIFFUSION, "synthetic_keep_quantile": 0.5}, **TINY_DYNAMICS)  # fmt: skip
+    generator = dict(filter=synthetic_filter, keep_quantile=0.5, dynamics_kwargs=TINY_DYNAMICS)
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **tiny_pride(generator_kwargs=generator))
     model.learn(400)
     assert model.replay_buffer.synthetic.size() == TINY_DIFFUSION["synthetic_samples"]
-    real = model.transition_vectors()
+    real = model.generator.transition_vectors(*model.real_transitions())
     rng = np.random.default_rng(0)
     vectors = real[rng.integers(0, len(real), size=400)]
     if synthetic_filter == "dynamics":  # the second half: next states off by five typical steps
         step_std = (real[:, 4:] - real[:, :3]).std(axis=0)
         vectors[200:, 4:] += 5 * step_std * rng.choice([-1, 1], size=(200, 3))
-        kept = model.filter_synthetic(vectors, 200)
+        kept = model.generator.select(vectors, 200)
         honest = {row.tobytes() for row in vectors[:200]}
         assert np.mean([row.tobytes() in honest for row in kept]) > 0.9
     else:  # the half the reward members agree on most
         doubt = model.reward_model.disagreement(vectors[:, :3], vectors[:, 3:4])
-        kept = model.filter_synthetic(vectors, 200)
+        kept = model.generator.select(vectors, 200, reward_doubt=model.reward_model.disagreement)
         np.testing.assert_array_equal(kept, vectors[np.argsort(doubt, kind="stable")[:200]])
         assert model.reward_model.disagreement(kept[:, :3], kept[:, 3:4]).max() <= np.sort(doubt)[200]
 
 
 def test_near_real_generation_of_state_changes(tiny_kwargs):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, generation="near_real", anchor_noise=0.3, model_state_change=True,
-                  **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)  # fmt: skip
+    generator = dict(generation="near_real", anchor_noise=0.3, model_state_change=True, dynamics_kwargs=TINY_DYNAMICS)
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **tiny_pride(generator_kwargs=generator))
     real = np.random.default_rng(0).normal(size=(5, 7)).astype(np.float32)
-    encoded = model.encode(real)
+    encoded = model.generator.encode(real)
     np.testing.assert_allclose(encoded[:, 4:], real[:, 4:] - real[:, :3])
-    np.testing.assert_allclose(model.decode(encoded), real, atol=1e-6)
+    np.testing.assert_allclose(model.generator.decode(encoded), real, atol=1e-6)
     model.learn(400)
     synthetic = model.replay_buffer.synthetic
     assert model.diffusion_retrains == 1 and synthetic.size() == TINY_DIFFUSION["synthetic_samples"]
     assert np.all(np.isfinite(synthetic.next_observations[: synthetic.size()]))
     # each sample comes with the real row it was generated near, and stays near it
-    real = model.transition_vectors()
-    vectors, anchors = model.generate(real, 100)
+    real = model.generator.transition_vectors(*model.real_transitions())
+    vectors, anchors = model.generator.generate(real, 100)
     assert vectors.shape == (100, 7) and anchors is not None and anchors.shape == (100,)
     assert np.abs(vectors - real[anchors]).mean() < np.abs(vectors - real[np.roll(anchors, 1)]).mean()
     # sanitize drops a non-finite vector together with its anchor, and rejects anchors that do not match
     vectors[3, 0] = np.nan
-    kept, kept_anchors = model.sanitize(vectors, anchors)
+    kept, kept_anchors = model.generator.sanitize(vectors, anchors)
     assert len(kept) == 99 and kept_anchors is not None
     np.testing.assert_array_equal(kept_anchors, np.delete(anchors, 3))
     with pytest.raises(ValueError, match="anchors must be one integer row index per generated vector"):
-        model.sanitize(vectors, anchors[:-1])
+        model.generator.sanitize(vectors, anchors[:-1])
     with pytest.raises(ValueError, match="anchors must be one integer row index"):  # row positions, not values
-        model.sanitize(vectors, anchors.astype(np.float32))
-
-
-def test_a_generate_override_that_returns_vectors_only_is_told_the_contract(tiny_kwargs):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION, **TINY_DYNAMICS)
-    model.generate = lambda real, n: real[np.arange(n) % len(real)]  # the old contract: vectors only
-    with pytest.raises(TypeError, match="generate must return"):
-        model.learn(400)
+        model.generator.sanitize(vectors, anchors.astype(np.float32))
 
 
 def test_bad_mixing_input_names_the_parameter():
-    bad = dict(
-        generation="from_scratch",
-        anchor_noise=0.0,
-        synthetic_start=-1,
-        synthetic_ramp=1.5,
-        diffusion_window=0,
-        synthetic_keep_quantile=0.0,
-        synthetic_filter="value",
-        synthetic_on_top="yes",
-    )
-    for name, value in bad.items():
+    for name, value in dict(synthetic_start=-1, synthetic_ramp=1.5, synthetic_on_top="yes").items():
         with pytest.raises(ValueError, match=name):
             PRIDE("MlpPolicy", "Pendulum-v1", **{name: value})
-    with pytest.raises(ValueError, match="synthetic_keep_quantile"):
-        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=1.01)
+    bad_generator = dict(generation="from_scratch", anchor_noise=0.0, window=0, keep_quantile=0.0, filter="value")
+    for name, value in bad_generator.items():
+        with pytest.raises(ValueError, match=name):
+            PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs={name: value})
+    with pytest.raises(ValueError, match="keep_quantile"):
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(keep_quantile=1.01))
     with pytest.raises(ValueError, match="anchor_noise"):
-        PRIDE("MlpPolicy", "Pendulum-v1", anchor_noise=2.0, diffusion_kwargs=dict(sigma_max=1.0))
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(anchor_noise=2.0, diffusion_kwargs=dict(sigma_max=1.0)))
     with pytest.raises(ValueError, match="dynamics_kwargs"):
-        PRIDE("MlpPolicy", "Pendulum-v1", dynamics_kwargs=dict(depth=3))
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(dynamics_kwargs=dict(depth=3)))
     with pytest.raises(ValueError, match="fidelity_check"):
-        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_keep_quantile=0.5, fidelity_check=False)
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=dict(keep_quantile=0.5, fidelity_check=False))
+    with pytest.raises(ValueError, match="generator_kwargs must be a dict"):
+        PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs="paper")
     with pytest.raises(ValueError, match="synthetic_on_top=True needs synthetic_ratio < 1"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=True)
     PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=False)  # every row synthetic: in place

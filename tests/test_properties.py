@@ -1,7 +1,8 @@
 """
-Bad input, systematically (issue 11 §3): property-based tests with Hypothesis.
+Bad input, systematically: property-based tests with Hypothesis.
 
-1. Constructors. Every validated parameter of PEBBLE and PRIDE (PEBBLE's also through PRIDE) refuses values drawn
+1. Constructors. Every validated parameter of PEBBLE and PRIDE (PEBBLE's also through PRIDE, the generator's through
+   ``generator_kwargs``) refuses values drawn
    from outside what it accepts (out-of-range integers, non-integers where an integer is required, NaN and ±inf,
    bools, strings, None, unknown choices) with a ``ValueError`` that names the parameter and the accepted range.
    Values drawn from inside the range construct, and the model keeps them.
@@ -23,11 +24,12 @@ from conftest import TINY
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from sb3_pride import PEBBLE, PRIDE, TEACHER_PRESETS
+from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.teachers import TEACHERS
 from sb3_pride.common.diffusion import NORMALIZATIONS
+from sb3_pride.common.generator import FILTERS, GENERATIONS
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs
-from sb3_pride.pride.pride import GENERATIONS, SYNTHETIC_FILTERS
 
 #: cheap models: Pendulum (200-step episodes), tiny networks, small buffers
 CHEAP = dict(buffer_size=1000, policy_kwargs=dict(net_arch=[16]), reward_net_arch=(16,))
@@ -40,8 +42,23 @@ SESSIONS = settings(
 )
 
 
+#: PRIDE's generator settings, given through generator_kwargs
+GENERATOR_PARAMS = {"width", "n_blocks", "train_steps", "sample_steps", "window", "generation", "normalization",
+                    "anchor_noise", "keep_quantile", "filter", "diffusion_kwargs", "dynamics_kwargs"}  # fmt: skip
+
+
 def build(algo, **kwargs):
+    generator = {name: kwargs.pop(name) for name in list(kwargs) if name in GENERATOR_PARAMS}
+    if generator:
+        kwargs["generator_kwargs"] = generator
     return algo("MlpPolicy", "Pendulum-v1", **{**(CHEAP_PRIDE if algo is PRIDE else CHEAP), **kwargs})
+
+
+def setting(model, param):
+    """A constructor setting as the model keeps it (the generator's on its generator)."""
+    if param in GENERATOR_PARAMS:
+        return model.generator.diffusion_options.get(param, getattr(model.generator, param, None))
+    return getattr(model, param)
 
 
 # -- strategies of bad values --------------------------------------------------------------------------------------
@@ -105,15 +122,8 @@ PEBBLE_POSITIVE = (
     "reward_epochs",
 )
 PEBBLE_NON_NEGATIVE = ("unsupervised_steps", "critic_reset_updates")
-PRIDE_POSITIVE = (
-    "diffusion_interval",
-    "synthetic_samples",
-    "diffusion_width",
-    "diffusion_blocks",
-    "diffusion_train_steps",
-    "diffusion_sample_steps",
-)
-PRIDE_OPTIONAL_POSITIVE = ("synthetic_buffer_size", "diffusion_window")  # None: the default
+PRIDE_POSITIVE = ("diffusion_interval", "synthetic_samples", "width", "n_blocks", "train_steps", "sample_steps")
+PRIDE_OPTIONAL_POSITIVE = ("synthetic_buffer_size", "window")  # None: the default
 PRIDE_NON_NEGATIVE = ("synthetic_start", "synthetic_ramp")
 
 PEBBLE_INVALID = [
@@ -125,7 +135,7 @@ PEBBLE_INVALID = [
     Invalid("n_steps", st.integers().filter(lambda n: n != 1), "n_steps must be 1"),
     Invalid(
         "teacher",
-        st.one_of(st.text(max_size=8).filter(lambda s: s not in TEACHER_PRESETS and s != "web"), st.integers(), st.none()),
+        st.one_of(st.text(max_size=8).filter(lambda s: s not in TEACHERS), st.integers(), st.none()),
         "teacher must be",
     ),
 ]
@@ -139,22 +149,18 @@ PRIDE_INVALID = [
     *(Invalid(p, not_positive_int(none=False), f"{p} must be a positive integer") for p in PRIDE_OPTIONAL_POSITIVE),
     *(Invalid(p, not_non_negative_int(), f"{p} must be a non-negative integer") for p in PRIDE_NON_NEGATIVE),
     Invalid("generation", not_one_of(GENERATIONS), f"generation must be one of {GENERATIONS}"),
-    Invalid(
-        "diffusion_normalization",
-        not_one_of(NORMALIZATIONS),
-        f"diffusion_normalization must be one of {NORMALIZATIONS}",
-    ),
+    Invalid("normalization", not_one_of(NORMALIZATIONS), f"normalization must be one of {NORMALIZATIONS}"),
     Invalid(
         "anchor_noise",
         st.one_of(st.floats(max_value=0.002), floats_above(80.0), st.just(math.nan)),
         "anchor_noise must be in (sigma_min=0.002, sigma_max=80.0]",
     ),
     Invalid(
-        "synthetic_keep_quantile",
+        "keep_quantile",
         st.one_of(st.floats(max_value=0.0), floats_above(1.0), st.just(math.nan)),
-        "synthetic_keep_quantile must be in (0, 1]",
+        "keep_quantile must be in (0, 1]",
     ),
-    Invalid("synthetic_filter", not_one_of(SYNTHETIC_FILTERS), f"synthetic_filter must be one of {SYNTHETIC_FILTERS}"),
+    Invalid("filter", not_one_of(FILTERS), f"filter must be one of {FILTERS}"),
     Invalid(
         "synthetic_on_top",
         st.one_of(st.integers(), st.floats(), st.text(max_size=4), st.none()),
@@ -179,14 +185,14 @@ VALID = [
     (PRIDE, "synthetic_ratio", st.floats(0.0, 1.0, exclude_max=True)),
     (PRIDE, "diffusion_interval", st.integers(1, 10**12)),
     (PRIDE, "synthetic_buffer_size", st.one_of(st.none(), st.integers(1, 1000))),
-    (PRIDE, "diffusion_window", st.one_of(st.none(), st.integers(1, 10**12))),
+    (PRIDE, "window", st.one_of(st.none(), st.integers(1, 10**12))),
     (PRIDE, "synthetic_start", st.integers(0, 10**12)),
     (PRIDE, "synthetic_ramp", st.integers(0, 10**12)),
     (PRIDE, "generation", st.sampled_from(GENERATIONS)),
-    (PRIDE, "diffusion_normalization", st.sampled_from(NORMALIZATIONS)),
+    (PRIDE, "normalization", st.sampled_from(NORMALIZATIONS)),
     (PRIDE, "anchor_noise", st.floats(0.002, 80.0, exclude_min=True)),
-    (PRIDE, "synthetic_keep_quantile", st.floats(0.0, 1.0, exclude_min=True)),
-    (PRIDE, "synthetic_filter", st.sampled_from(SYNTHETIC_FILTERS)),
+    (PRIDE, "keep_quantile", st.floats(0.0, 1.0, exclude_min=True)),
+    (PRIDE, "filter", st.sampled_from(FILTERS)),
 ]
 
 
@@ -206,7 +212,7 @@ def test_invalid_values_are_refused_naming_the_parameter(algo, case, data):
 def test_valid_values_construct(algo, param, values, data):
     value = data.draw(values, label=param)
     model = build(algo, **{param: value})
-    assert getattr(model, param) == value
+    assert setting(model, param) == value
 
 
 # -- the teacher boundary ------------------------------------------------------------------------------------------
@@ -401,7 +407,7 @@ def test_reward_learning_rate_refuses_nan_and_inf(value):
         (PEBBLE, "reward_learning_rate"),
         (PRIDE, "synthetic_ratio"),
         (PRIDE, "anchor_noise"),
-        (PRIDE, "synthetic_keep_quantile"),
+        (PRIDE, "keep_quantile"),
     ],
 )
 @pytest.mark.parametrize("value", ["0.5", None])
@@ -413,13 +419,14 @@ def test_non_numbers_for_float_parameters_are_refused_naming_them(algo, param, v
 @pytest.mark.parametrize(
     ("param", "kwargs"),
     [
-        ("diffusion_kwargs", {"not_an_argument": 1}),
-        ("diffusion_kwargs", {"batch_size": 0}),
+        ("diffusion", {"not_an_argument": 1}),
+        ("diffusion", {"batch_size": 0}),
         ("dynamics_kwargs", {"width": 0}),
     ],
 )
 def test_bad_component_kwargs_are_refused_at_construction(param, kwargs):
-    with pytest.raises(ValueError, match=param):
+    param = "diffusion_kwargs" if param == "diffusion" else param
+    with pytest.raises(ValueError, match="diffusion" if param == "diffusion_kwargs" else param):
         build(PRIDE, **{param: kwargs})
 
 

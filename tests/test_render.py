@@ -1,4 +1,4 @@
-"""Segments that can be shown (issue 10 §1): recorded states, re-rendered pixel-identical, encoded for browsers."""
+"""Segments that can be shown: recorded states, re-rendered pixel-identical, encoded for browsers."""
 
 import gymnasium as gym
 import numpy as np

@@ -1,4 +1,4 @@
-"""WebTeacher (issue 10): the HTTP boundary, and a person's keys in real headless Chromium during a PEBBLE run."""
+"""WebTeacher: the HTTP boundary, and a person's keys in real headless Chromium during a PEBBLE run."""
 
 import json
 import os
@@ -37,12 +37,13 @@ def open_session(tiny_kwargs, tmp_path):
     teacher = WebTeacher(port=0, clip_dir=tmp_path / "clips")
     (tmp_path / "clips").mkdir()
     (tmp_path / "clips" / "a-left.mp4").write_bytes(bytes(range(256)) * 40)
-    teacher._model = model
+    teacher._attached = True
     teacher._start_server()
     inputs = np.zeros((2, tiny_kwargs["segment_length"], 4), np.float32)
     clips = {name: (f"/clips/{name}-left.mp4", f"/clips/{name}-right.mp4") for name in "ab"}
     queries = [_Query(name, inputs + i, clips[name], ready=True) for i, name in enumerate("ab")]
-    teacher._session = _Session(1, queries, asked_before=0)
+    teacher._session = _Session(1, queries, 0, model.record_answers, model.retract_answer)
+    teacher.model = model  # the journal's owner, for the assertions
     yield teacher
     teacher.close()
 
@@ -55,13 +56,13 @@ def test_bad_posts_are_refused_and_record_nothing(open_session):
         assert status == 400 and json.loads(reply)["error"], body
     status, _, _ = request(teacher.url + "api/undo", {})
     assert status == 400  # nothing to undo yet
-    assert teacher.state()["answered"] == 0 and teacher._model.journal_history() == []
+    assert teacher.state()["answered"] == 0 and teacher.model.journal_history() == []
 
     status, _, _ = request(teacher.url + "api/answer", {"id": "a", "label": 0.5})
     assert status == 200 and teacher.state()["answered"] == 1
     status, _, _ = request(teacher.url + "api/answer", {"id": "a", "label": 1})
     assert status == 400  # answered already
-    assert [entry.label for entry in PreferenceJournal(teacher._model.preference_journal).read()] == [0.5]
+    assert [entry.label for entry in PreferenceJournal(teacher.model.preference_journal).read()] == [0.5]
 
 
 def test_clips_are_served_with_range_requests(open_session):
@@ -94,7 +95,7 @@ def test_a_timeout_skips_the_rest(open_session, capsys):
     teacher.answer("a", 1)
     assert teacher._wait_for_answers() is session and teacher._session is None
     assert session.queries[0].label == 1 and np.isnan(session.queries[1].label)
-    assert len(teacher._model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
+    assert len(teacher.model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
     assert "timeout, 1 queries skipped" in capsys.readouterr().out
 
 
@@ -131,11 +132,11 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
                   or (answered == 3 and teacher.state()["session"] != session))  # fmt: skip
             assert shown is not None
 
-        # session 1: left, right, undo (takes the "right" back), equal, skip
+        # feedback session 1: left, right, undo (takes the "right" back), equal, skip
         keys = ((Keys.ARROW_LEFT, 1), (Keys.ARROW_RIGHT, 2), (Keys.BACKSPACE, 1), (Keys.ARROW_DOWN, 2), ("s", 3))
         for key, answered in keys:
             press(key, answered, session=1)
-        # session 2, picked up without a reload: right, left, equal
+        # feedback session 2, picked up without a reload: right, left, equal
         for key, answered in ((Keys.ARROW_RIGHT, 1), (Keys.ARROW_LEFT, 2), (Keys.ARROW_DOWN, 3)):
             press(key, answered, session=2)
     finally:
@@ -198,7 +199,7 @@ def test_answers_come_in_order_and_nothing_reaches_a_closed_session(open_session
     assert [q.label for q in session.queries] == [0, 1] and teacher._session is None
     status, _, _ = request(teacher.url + "api/undo", {})  # a late Backspace
     assert status == 400
-    assert [entry.label for entry in teacher._model.journal_history()] == [0, 1]
+    assert [entry.label for entry in teacher.model.journal_history()] == [0, 1]
 
 
 def test_clips_being_written_are_not_served(open_session):

@@ -24,11 +24,11 @@ TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "button-press-v3", "doo
 #: tiny settings for CLI runs of a few hundred steps
 TINY = (
     "learning_starts:100 unsupervised_steps:100 feedback_interval:200 queries_per_session:10 max_feedback:30 "
-    "segment_length:20 batch_size:64 diffusion_interval:200 synthetic_samples:500 diffusion_train_steps:50 "
-    "diffusion_sample_steps:4 synthetic_start:0 synthetic_ramp:100 diffusion_window:400 "
-    "dynamics_kwargs:dict(width=16,train_steps=20) policy_kwargs:dict(net_arch=[32,32]) buffer_size:5000"
+    "segment_length:20 batch_size:64 diffusion_interval:200 synthetic_samples:500 synthetic_start:0 synthetic_ramp:100 "
+    "generator_kwargs:dict(train_steps=50,sample_steps=4,window=400,dynamics_kwargs=dict(width=16,train_steps=20)) "
+    "policy_kwargs:dict(net_arch=[32,32]) buffer_size:5000"
 ).split()
-TINY_PEBBLE = [param for param in TINY if not param.startswith(("diffusion", "synthetic", "dynamics"))]
+TINY_PEBBLE = [param for param in TINY if not param.startswith(("diffusion", "synthetic", "generator"))]
 
 
 def entries(name):
@@ -61,32 +61,29 @@ def test_files_cover_the_papers_tasks_and_pride_is_pebble_plus_diffusion():
         for key in pebble:
             # a fair comparison: identical SAC and PEBBLE settings, PRIDE only adds its own keys
             assert {k: v for k, v in pride[key].items() if k in pebble[key]} == pebble[key]
-            assert set(pride[key]) - set(pebble[key]) >= {"synthetic_ratio", "diffusion_interval"}
+            assert "synthetic_ratio" in set(pride[key]) - set(pebble[key])
             assert {k: v for k, v in pebble[key].items() if k not in PEBBLE_KEYS} == sac[key]
 
 
-def test_pride_defaults_are_the_best_measured_cpu_configuration():
-    """PRIDE()'s own defaults are hyperparams/cpu/pride.yml's walker-walk entry (benchmarks/results/README.md), and
-    the paper-scale file spells out the paper's mixing rather than inheriting them."""
-    import inspect
+def test_recipes_are_named_not_copied():
+    """The paper-scale file names the paper's recipe; the CPU file leaves PRIDE's own settings to its defaults."""
+    from sb3_pride.pride.recipes import PAPER_SCALE_RECIPE, expand_recipe
+    from sb3_pride.zoo import model_kwargs
 
-    defaults = {name: p.default for name, p in inspect.signature(PRIDE.__init__).parameters.items()}
-    pebble_defaults = inspect.signature(PEBBLE.__init__).parameters
-    walker = entries("cpu/pride.yml")["dm_control/walker-walk-v0"]
-    own = {key: value for key, value in walker.items() if key in defaults and key not in pebble_defaults}
-    assert {"synthetic_start", "diffusion_window", "synthetic_keep_quantile", "diffusion_train_steps"} <= set(own)
-    assert own == {key: defaults[key] for key in own}
-    for entry in entries("pride.yml").values():
-        assert (entry["synthetic_start"], entry["synthetic_ramp"], entry["diffusion_window"]) == (0, 0, None)
-        assert entry["synthetic_keep_quantile"] == 1.0 and entry["generation"] == "unconditional"
-        assert entry["synthetic_on_top"] is False
+    for env_id, entry in entries("pride.yml").items():
+        assert entry["recipe"] == "paper_scale"
+        _, kwargs = model_kwargs(HYPERPARAMS / "pride.yml", env_id)
+        assert {key: kwargs[key] for key in PAPER_SCALE_RECIPE} == PAPER_SCALE_RECIPE
+        assert expand_recipe(entry)["generator_kwargs"]["generation"] == "unconditional"
+    for entry in entries("cpu/pride.yml").values():
+        assert "recipe" not in entry and set(entry.get("generator_kwargs", {})) <= {"train_steps"}
 
 
 @pytest.mark.parametrize("name", FILES)
 def test_every_shipped_entry_builds_a_model(name, tmp_path):
-    from rl_zoo3.exp_manager import ExperimentManager
-
     register()
+    from rl_zoo3.train import ExperimentManager  # with recipes expanded (register() extends rl-zoo3's)
+
     algo = Path(name).stem
     for env_id in entries(name):
         manager = ExperimentManager(
@@ -171,7 +168,7 @@ def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp
     assert "Loading the checkpoint's replay buffer" in out
     resumed = PEBBLE.load(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
     assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.journal_entries == 20
-    assert len(PreferenceJournal(journal).read()) == 20  # session 2 came back from the journal: nothing asked again
+    assert len(PreferenceJournal(journal).read()) == 20  # feedback session 2 came back from the journal: nothing asked again
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
 
 

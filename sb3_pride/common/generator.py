@@ -176,7 +176,9 @@ class TransitionGenerator:
         try:
             ElucidatedDiffusion(1, **{**diffusion_options, "device": "cpu"})
         except (TypeError, ValueError) as error:
-            raise ValueError(f"the generator's diffusion settings are not valid ElucidatedDiffusion arguments: {error}") from None
+            raise ValueError(
+                f"the generator's diffusion settings are not valid ElucidatedDiffusion arguments: {error}"
+            ) from None
         self.dynamics_options = {"train_steps": 500, **(dynamics_kwargs or {})}
         try:
             DynamicsEnsemble(1, 1, **{**self.dynamics_options, "device": "cpu"})

@@ -1,10 +1,22 @@
-"""Teachers label segment pairs: the ``Teacher`` protocol, and B-Pref's scripted teachers."""
+"""
+Teachers label segment pairs: the ``Teacher`` protocol, the ``InteractiveTeacher`` protocol of teachers that watch
+the segments (a person), B-Pref's scripted teachers, and the registry that resolves a teacher by name.
+"""
 
-from typing import Protocol, runtime_checkable
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from sb3_pride.common.journal import JournalEntry
 from sb3_pride.common.queries import SegmentPairs
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import VecEnv
+
+    from sb3_pride.common.buffers import PreferenceReplayBuffer
 
 
 @runtime_checkable
@@ -18,6 +30,43 @@ class Teacher(Protocol):
     """
 
     def __call__(self, pairs: SegmentPairs) -> np.ndarray: ...
+
+
+@dataclass
+class FeedbackContext:
+    """
+    What an ``InteractiveTeacher`` is told of the feedback session it answers.
+
+    :param session: the number of this feedback session (1 for the first)
+    :param asked_before: queries asked in the earlier sessions
+    :param budget: Q, the run's total query budget (``max_feedback``)
+    :param record: journals answers the moment they are given (flushed to disk before it returns)
+    :param retract: journals that the last answer of a session (its number) was taken back
+    """
+
+    session: int
+    asked_before: int
+    budget: int
+    record: Callable[[list[JournalEntry]], None]
+    retract: Callable[[int], None]
+
+
+@runtime_checkable
+class InteractiveTeacher(Protocol):
+    """
+    A teacher that watches the segments and answers over time (a person behind a UI). It is never given the model,
+    only what it needs:
+
+    - ``attach(env, buffer)``, when the model is made, loaded or given a new env: check that ``env`` can be shown and
+      switch on the recording of what it needs to show it beside the transitions of ``buffer`` (e.g. simulator
+      states: ``SegmentPairs.render_states``); raise ``ValueError`` if it cannot;
+    - ``ask(pairs, context)``, at each feedback session: one μ per pair (0, 1, 0.5, or NaN for a skip), every
+      answer journaled by ``context.record`` as it is given (a crash mid-session loses none).
+    """
+
+    def attach(self, env: "VecEnv", buffer: "PreferenceReplayBuffer") -> None: ...
+
+    def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray: ...
 
 
 #: B-Pref's simulated teachers (README of rll-research/BPref); ``beta=None`` is perfectly rational
@@ -81,9 +130,7 @@ class ScriptedTeacher:
     def from_preset(cls, name: str, seed: int | None = None) -> "ScriptedTeacher":
         """One of B-Pref's teachers: ``oracle``, ``mistake``, ``noisy``, ``skip``, ``myopic``, ``equal``."""
         if name not in TEACHER_PRESETS:
-            raise ValueError(
-                f'teacher must be a Teacher, "web" (a person, in a browser) or one of {sorted(TEACHER_PRESETS)}, got {name!r}'
-            )
+            raise ValueError(f"name must be one of B-Pref's teachers {sorted(TEACHER_PRESETS)}, got {name!r}")
         return cls(**TEACHER_PRESETS[name], seed=seed)  # type: ignore[arg-type]
 
     def step_weights(self, segment_length: int) -> np.ndarray:
@@ -109,10 +156,31 @@ class ScriptedTeacher:
         return labels
 
 
-def make_teacher(teacher: str | Teacher, seed: int | None = None) -> Teacher:
-    """A preset name becomes a ``ScriptedTeacher``; a ``Teacher`` is returned as is."""
+#: makes a teacher from the run's seed
+TeacherFactory = Callable[[int | None], Any]
+#: teachers by name: B-Pref's presets, and those registered by ``register_teacher`` (``"web"``, by
+#: ``sb3_pride.human``)
+TEACHERS: dict[str, TeacherFactory] = {name: functools.partial(ScriptedTeacher.from_preset, name) for name in TEACHER_PRESETS}
+
+
+def register_teacher(name: str, factory: TeacherFactory) -> None:
+    """
+    Make ``teacher=name`` mean ``factory(seed)`` in ``PEBBLE``/``PRIDE`` and the hyperparameter files. A name is
+    registered once: registering it again replaces it.
+    """
+    if not isinstance(name, str) or not name:
+        raise ValueError(f"name must be a non-empty string, got {name!r}")
+    if not callable(factory):
+        raise ValueError(f"factory must be callable (seed -> teacher), got {factory!r}")
+    TEACHERS[name] = factory
+
+
+def make_teacher(teacher: "str | Teacher | InteractiveTeacher", seed: int | None = None) -> "Teacher | InteractiveTeacher":
+    """A registered name becomes its teacher (a B-Pref preset a seeded ``ScriptedTeacher``); a teacher is returned as is."""
     if isinstance(teacher, str):
-        return ScriptedTeacher.from_preset(teacher, seed=seed)
-    if not callable(teacher):
-        raise ValueError(f"teacher must be a preset name or a callable Teacher, got {type(teacher).__name__}")
+        if teacher not in TEACHERS:
+            raise ValueError(f"teacher must be a Teacher or one of {sorted(TEACHERS)}, got {teacher!r}")
+        return TEACHERS[teacher](seed)
+    if not (callable(teacher) or isinstance(teacher, InteractiveTeacher)):
+        raise ValueError(f"teacher must be a registered name or a Teacher (a callable), got {type(teacher).__name__}")
     return teacher

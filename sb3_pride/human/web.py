@@ -3,8 +3,9 @@
 
 At each feedback session the run renders every queried pair as two H.264 clips (re-rendered from the simulator
 states recorded beside the transitions), serves them on a local web page and waits until every query is answered.
-Answers go to the model's preference journal the moment they are given (``PEBBLE(preference_journal=...)``), so a
-run killed mid-session loses none.
+Answers go to the run's preference journal the moment they are given (``PEBBLE(preference_journal=...)``), so a
+run killed mid-session loses none. ``WebTeacher`` is an ``InteractiveTeacher``: the model gives it its env and replay
+buffer when it is attached, and each session's pairs with a ``FeedbackContext``; never the model itself.
 """
 
 import atexit
@@ -22,9 +23,13 @@ import numpy as np
 
 from sb3_pride.common.journal import JournalEntry
 from sb3_pride.common.queries import SegmentPairs
+from sb3_pride.common.render_states import enable_render_states
+from sb3_pride.common.teachers import FeedbackContext, register_teacher
 
 if TYPE_CHECKING:
-    from sb3_pride.pebble.pebble import PEBBLE
+    from stable_baselines3.common.vec_env import VecEnv
+
+    from sb3_pride.common.buffers import PreferenceReplayBuffer
 
 #: the answers the page may send: μ = P[right segment preferred]; None is a skip
 ALLOWED_LABELS = (0.0, 0.5, 1.0, None)
@@ -45,6 +50,8 @@ class _Session:
     number: int
     queries: list[_Query]
     asked_before: int
+    record: Any  # FeedbackContext.record / .retract: the run's journal
+    retract: Any
     answer_order: list[str] = field(default_factory=list)
 
     @property
@@ -57,7 +64,7 @@ class _Session:
 
 class WebTeacher:
     """
-    A ``Teacher`` that asks a person, on a local web page (``http://host:port/``), which of two segments is better.
+    An ``InteractiveTeacher`` that asks a person, on a local web page (``http://host:port/``), which of two segments is better.
 
     The page plays both segments of a pair side by side as looping clips that restart together, with a playback
     speed control and buttons; keys: ArrowLeft = left preferred (μ = 0), ArrowRight = right preferred (μ = 1),
@@ -76,9 +83,6 @@ class WebTeacher:
     :param camera: the MuJoCo camera of the clips, by name or id (None: dm_control's first camera, Meta-World's
         "corner3", the free camera for other MuJoCo envs)
     """
-
-    #: each answer is written to the model's preference journal as it is given (not by the feedback session)
-    journals_answers = True
 
     def __init__(
         self,
@@ -110,7 +114,8 @@ class WebTeacher:
         self._init_runtime()
 
     def _init_runtime(self) -> None:
-        self._model: PEBBLE | None = None
+        self._attached = False
+        self._budget: dict[str, int | None] = {"max": None, "asked": None}
         self._renderer: Any = None
         self._server: Any = None
         self._session: _Session | None = None
@@ -132,23 +137,21 @@ class WebTeacher:
         return f"http://{self.host}:{self.port}/"
 
     # attaching --------------------------------------------------------------------------------------------------
-    def attach(self, model: "PEBBLE") -> None:
+    def attach(self, env: "VecEnv", buffer: "PreferenceReplayBuffer") -> None:
         """
-        Called by the model when it is made, loaded or given a new env: check that its env can be re-rendered,
-        switch on the recording of simulator states beside the transitions, start the web server.
+        Called by the model when it is made, loaded or given a new env: check that ``env`` can be re-rendered,
+        switch on the recording of simulator states beside the transitions of ``buffer``, start the web server.
         """
-        from sb3_pride.human.render import SegmentRenderer, enable_render_states
+        from sb3_pride.human.render import SegmentRenderer
 
-        assert model.env is not None
         try:
-            env_id = model.env.get_attr("render_env_id")[0]
+            env_id = env.get_attr("render_env_id")[0]
         except AttributeError:
             raise ValueError(
                 "WebTeacher re-renders segments from the simulator states that RenderStates records: make the env as "
                 "'sb3_pride/<domain>-<task>-v0' (dm_control) or 'sb3_pride/<task>-v3' (Meta-World), or wrap a MuJoCo env "
                 "with sb3_pride.human.RenderStates(env, env_id=...)"
             ) from None
-        buffer = model.real_buffer
         if buffer.size() > 0 and buffer.render_states is None:
             raise ValueError(
                 f"the replay buffer holds {buffer.size()} transitions recorded without simulator states (by a scripted "
@@ -157,14 +160,14 @@ class WebTeacher:
             )
         if self._renderer is None or self._renderer.env_id != env_id:
             self._renderer = SegmentRenderer(env_id, width=self.width, height=self.height, camera=self.camera)
-        state_size = enable_render_states(model.env, self._renderer.layout)
+        state_size = enable_render_states(env, self._renderer.layout)
         if state_size != self._renderer.state_size:
             raise ValueError(
                 f"the env records states of {state_size} numbers but a fresh {env_id!r} has {self._renderer.state_size}: "
                 "RenderStates(env, env_id=...) must name an id that makes this same env"
             )
         buffer.record_render_states = True
-        self._model = model
+        self._attached = True
         self._clips_folder()  # made now, not by two threads at once
         self._start_server()
 
@@ -205,23 +208,26 @@ class WebTeacher:
         return Path(self._temporary_dir)
 
     # a feedback session -----------------------------------------------------------------------------------------
-    def __call__(self, pairs: SegmentPairs) -> np.ndarray:
-        """Show every pair on the page and wait for its answer: μ per pair, NaN for a skip (or a timeout)."""
-        model = self._model
-        if model is None:
-            raise RuntimeError("WebTeacher was not attached to a model (PEBBLE/PRIDE attach their teacher themselves)")
+    def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray:
+        """
+        Show every pair on the page and wait for its answer: μ per pair, NaN for a skip (or a timeout). Each answer
+        (and undo) is journaled through ``context`` the moment it is given.
+        """
+        if not self._attached:
+            raise RuntimeError("WebTeacher was not attached to an env (PEBBLE/PRIDE attach their teacher themselves)")
         if pairs.render_states is None:
             raise ValueError("WebTeacher needs pairs with render_states (recorded once it is attached to the model)")
         from sb3_pride.human.render import encode_mp4
 
-        number = model.feedback_sessions + 1
+        number = context.session
         folder = self._clips_folder()
         queries = []
         for inputs in pairs.inputs:
             query_id = uuid.uuid4().hex[:12]
             queries.append(_Query(query_id, inputs, (f"/clips/{query_id}-left.mp4", f"/clips/{query_id}-right.mp4")))
         with self._condition:
-            self._session = _Session(number, queries, asked_before=model.feedback_asked)
+            self._session = _Session(number, queries, context.asked_before, context.record, context.retract)
+            self._budget = {"max": context.budget, "asked": context.asked_before}
             self._condition.notify_all()
         print(f"WebTeacher: feedback session {number}, {len(queries)} queries: answer them at {self.url}", flush=True)
         try:
@@ -271,11 +277,12 @@ class WebTeacher:
 
     def _record(self, query: _Query, label: float | None) -> None:
         """An answer: journaled (flushed to disk) first, then kept, so that a failed write changes nothing. Holds the lock."""
-        assert self._session is not None and self._model is not None
+        assert self._session is not None
         value = np.nan if label is None else float(label)
-        self._model.record_answers([JournalEntry(self._session.number, query.inputs, value)])
+        self._session.record([JournalEntry(self._session.number, query.inputs, value)])
         query.label, query.answered = value, True
         self._session.answer_order.append(query.id)
+        self._budget["asked"] = self._session.asked_before + self._session.n_answered
         self._condition.notify_all()
 
     # the web page -----------------------------------------------------------------------------------------------
@@ -283,12 +290,9 @@ class WebTeacher:
         """What the page shows: the session's queries (clips, answered or not), progress and the budget."""
         with self._condition:
             self._last_seen = time.monotonic()
-            model, session = self._model, self._session
-            budget = {"max": model.max_feedback if model else None}
+            session, budget = self._session, dict(self._budget)
             if session is None:
-                budget["asked"] = model.feedback_asked if model else None
                 return {"session": None, "queries": [], "answered": 0, "total": 0, "budget": budget}
-            budget["asked"] = session.asked_before + session.n_answered
             queries = [
                 {"id": q.id, "left": q.clips[0], "right": q.clips[1], "answered": q.answered, "ready": q.ready}
                 for q in session.queries
@@ -326,9 +330,9 @@ class WebTeacher:
             session = self._session
             if session is None or not session.answer_order:
                 return False, "no answer of this feedback session to undo"
-            assert self._model is not None
-            self._model.retract_answer(session.number)  # journaled first, as answers are
+            session.retract(session.number)  # journaled first, as answers are
             last = session.answer_order.pop()
+            self._budget["asked"] = session.asked_before + session.n_answered
             query = next(q for q in session.queries if q.id == last)
             query.label, query.answered = None, False
             return True, query.id
@@ -382,3 +386,6 @@ def shared_web_teacher() -> WebTeacher:
     if _shared is None:
         _shared = WebTeacher()
     return _shared
+
+
+register_teacher("web", lambda seed: shared_web_teacher())

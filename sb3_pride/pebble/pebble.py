@@ -19,15 +19,13 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.common.entropy import StateEntropyReward
-from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path
-from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, query_id
+from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows, sample_segment_pairs, select_queries
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
-from sb3_pride.common.teachers import Teacher, make_teacher
+from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, Teacher, make_teacher
 from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
-#: ``teacher="web"``: a person labels in a browser (``sb3_pride.human.WebTeacher`` on port 8000)
-WEB_TEACHER = "web"
 
 
 def _belongs_to(module: th.nn.Module, owner: th.nn.Module | None) -> bool:
@@ -54,9 +52,10 @@ class PEBBLE(SAC):
     Saves (``save()``, ``save_replay_buffer()``, SB3's ``CheckpointCallback``) write a temporary file and rename it,
     so a run killed mid-save leaves the previous checkpoint readable.
 
-    :param teacher: who labels the queries: a ``Teacher`` (a callable), "web" (a person, in a browser:
-        ``sb3_pride.human.WebTeacher()`` on port 8000), or the name of a B-Pref scripted teacher preset: "oracle",
-        "mistake", "noisy", "skip", "myopic", "equal"
+    :param teacher: who labels the queries: a ``Teacher`` (a callable), an ``InteractiveTeacher`` (a person behind a
+        UI, e.g. ``sb3_pride.human.WebTeacher``), or a name registered in ``sb3_pride.common.teachers.TEACHERS``: a
+        B-Pref scripted teacher ("oracle", "mistake", "noisy", "skip", "myopic", "equal") or "web" (a person, in a
+        browser: one ``WebTeacher()`` on port 8000 per process)
     :param max_feedback: Q, the total query budget
     :param feedback_interval: M, env steps between feedback sessions
     :param queries_per_session: K, queries asked per session (the last session is cut to the budget)
@@ -151,8 +150,9 @@ class PEBBLE(SAC):
             reward_epochs=reward_epochs,
         )
         check_non_negative_ints(unsupervised_steps=unsupervised_steps, critic_reset_updates=critic_reset_updates)
-        if gradient_steps != -1:  # SB3's -1: as many updates as env steps collected; with 0 it would never train
-            check_positive_ints(gradient_steps=gradient_steps)
+        if isinstance(gradient_steps, bool) or not isinstance(gradient_steps, (int, np.integer)):
+            # SB3's: -1 as many updates as env steps collected, 0 none (a user's own loop calls train())
+            raise ValueError(f"gradient_steps must be an integer, got {gradient_steps!r}")
         check_choice("query_selection", query_selection, QUERY_SELECTIONS)
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         if n_steps != 1:
@@ -166,10 +166,8 @@ class PEBBLE(SAC):
                 f"replay_buffer_class must subclass {self.buffer_class.__name__} (true rewards kept aside), "
                 f"got {replay_buffer_class.__name__}"
             )
-        if teacher == WEB_TEACHER:
-            from sb3_pride.human.render import use_headless_gl
-
-            use_headless_gl()  # before the env is made: MuJoCo reads MUJOCO_GL once
+        # resolved before the env is made: a teacher that renders (a person's) may set up headless rendering first
+        resolved_teacher = make_teacher(teacher, seed=seed)
         if env is not None:
             # rl-zoo3 and SB3's load() build the model with _init_setup_model=False before restoring its
             # segment_length: load() checks the episode length itself, once the saved value is back
@@ -204,12 +202,12 @@ class PEBBLE(SAC):
             device=device,
             _init_setup_model=False,
         )
-        if teacher != WEB_TEACHER:
-            make_teacher(teacher)  # fail now on a bad preset name
-        # kept as given (a preset name stays a name, so that rl-zoo3 can pass it again on resume)
+        # kept as given (a registered name stays a name, so that rl-zoo3 can pass it again on resume)
         self.teacher = teacher
-        self._scripted_teacher: tuple[str, Teacher] | None = None
-        self._web_teacher: Teacher | None = None
+        #: (name, teacher) of a teacher given by name (a scripted one is saved with its random state)
+        self._named_teacher: tuple[str, Teacher | InteractiveTeacher] | None = None
+        if isinstance(teacher, str):
+            self._named_teacher = (teacher, resolved_teacher)
         self.max_feedback = max_feedback
         self.feedback_interval = feedback_interval
         self.queries_per_session = queries_per_session
@@ -411,39 +409,44 @@ class PEBBLE(SAC):
     def _preference_callbacks(self) -> list[BaseCallback]:
         return [UnsupervisedPretrainingCallback(), FeedbackCallback(verbose=self.verbose)]
 
-    def resolve_teacher(self) -> Teacher:
-        """
-        The teacher object: a preset name becomes a ScriptedTeacher once (its random state is then saved); "web" a
-        ``sb3_pride.human.WebTeacher`` on port 8000 (the ``[human]`` extra), one per process (``shared_web_teacher``).
-        """
+    def resolve_teacher(self) -> Teacher | InteractiveTeacher:
+        """The teacher object: a registered name is made into one once (``make_teacher``), with the run's seed."""
         if not isinstance(self.teacher, str):
             return self.teacher
-        if self.teacher == WEB_TEACHER:
-            if self._web_teacher is None:
-                from sb3_pride.human.web import shared_web_teacher  # the [human] extra: imported only when asked for
-
-                self._web_teacher = shared_web_teacher()
-            return self._web_teacher
-        if self._scripted_teacher is None or self._scripted_teacher[0] != self.teacher:
-            self._scripted_teacher = (self.teacher, make_teacher(self.teacher, seed=self.seed))
-        return self._scripted_teacher[1]
+        if self._named_teacher is None or self._named_teacher[0] != self.teacher:
+            self._named_teacher = (self.teacher, make_teacher(self.teacher, seed=self.seed))
+        return self._named_teacher[1]
 
     def _attach_teacher(self) -> None:
         """
-        Give the teacher the model if it asks for it (``attach``): a teacher that watches the segments (a person)
-        then checks that the env can be re-rendered and switches on the recording of simulator states, so that an
-        env it cannot show fails now, not at the first feedback session.
+        An ``InteractiveTeacher`` is attached to the env and the replay buffer (it checks that the env can be shown
+        and switches on the recording of what it needs, so that an env it cannot show fails now, not at the first
+        feedback session); any other teacher records nothing beside the transitions.
         """
-        attach = getattr(self.resolve_teacher(), "attach", None)
-        if not callable(attach):  # a teacher that does not watch: record no states (a resumed buffer may say so)
-            if getattr(self, "replay_buffer", None) is not None:
-                self.real_buffer.record_render_states = False
-        elif self.env is not None:
-            attach(self)
+        teacher = self.resolve_teacher()
+        if isinstance(teacher, InteractiveTeacher):
+            if self.env is not None:
+                teacher.attach(self.env, self.real_buffer)
+        elif getattr(self, "replay_buffer", None) is not None:  # a resumed buffer may say otherwise
+            self.real_buffer.record_render_states = False
 
     def ask_teacher(self, pairs: SegmentPairs) -> np.ndarray:
-        """The teacher's labels μ for ``pairs``, checked: one per pair, each in [0, 1] or NaN (skipped)."""
-        answer = self.resolve_teacher()(pairs)
+        """
+        The teacher's labels μ for ``pairs``, checked: one per pair, each in [0, 1] or NaN (skipped). An
+        ``InteractiveTeacher`` journals its answers itself, as they come (``FeedbackContext``).
+        """
+        teacher = self.resolve_teacher()
+        if isinstance(teacher, InteractiveTeacher):
+            context = FeedbackContext(
+                session=self.feedback_sessions + 1,
+                asked_before=self.feedback_asked,
+                budget=self.max_feedback,
+                record=self.record_answers,
+                retract=self.retract_answer,
+            )
+            answer = teacher.ask(pairs, context)
+        else:
+            answer = teacher(pairs)
         try:
             labels = np.asarray(answer)
         except ValueError as error:  # ragged nesting
@@ -457,6 +460,104 @@ class PEBBLE(SAC):
         if np.any((finite < 0) | (finite > 1)):
             raise ValueError("teacher labels must be in [0, 1] (P[second segment preferred]) or NaN (skipped)")
         return labels
+
+    # a feedback session (Algorithm 1, lines 6–21) ------------------------------------------------------------------
+    def feedback_session(self) -> bool:
+        """
+        Ask, label, learn r̂, relabel: ``min(queries_per_session, max_feedback - asked)`` queries. Answers of this
+        session already in the preference journal (given before a crash) are taken from it; the teacher is asked only
+        for the rest, never for a query it answered.
+
+        :return: False when no segment fits in the stored episodes yet (nothing was asked)
+        """
+        session = self.feedback_sessions + 1
+        n_queries = min(self.queries_per_session, self.max_feedback - self.feedback_asked)
+        journaled = self.journaled_answers(session)[:n_queries]
+        inputs, labels = self.ask_new_queries(n_queries - len(journaled))
+        if inputs is None:
+            return False
+        # the journal is written before the answers are used (an interactive teacher has written each as it came):
+        # a crash from here on loses none of them
+        if not isinstance(self.resolve_teacher(), InteractiveTeacher):
+            self.record_answers([JournalEntry(session, pair, label) for pair, label in zip(inputs, labels, strict=True)])
+        self.journal_entries += len(journaled) + len(labels)
+        if journaled:
+            inputs = np.concatenate([np.stack([entry.inputs for entry in journaled]), inputs])
+            labels = np.concatenate([[entry.label for entry in journaled], labels])
+        labeled = ~np.isnan(labels)
+        self.preferences.add(inputs[labeled], labels[labeled])
+        # skipped queries count as asked (they cost the teacher's time) but not as labels
+        self.feedback_asked += len(labels)
+        self.feedback_labeled += int(labeled.sum())
+        self.feedback_sessions += 1
+        self.logger.record("feedback/asked", self.feedback_asked)
+        self.logger.record("feedback/labeled", self.feedback_labeled)
+        self.logger.record("feedback/sessions", self.feedback_sessions)
+        if len(self.preferences) > 0:
+            self.learn_reward()
+        return True
+
+    def ask_new_queries(self, n_queries: int) -> tuple[np.ndarray | None, np.ndarray]:
+        """
+        Sample candidate pairs, select ``n_queries`` of them and ask the teacher (``ask_teacher`` checks the answers
+        before anything is recorded). Pairs the journal already holds are never asked again.
+
+        :return: the pairs' reward-model inputs (n, 2, k, obs_dim + action_dim) and their labels μ (NaN: skipped),
+            or (None, _) when no segment fits in the stored episodes yet
+        """
+        no_inputs = np.zeros((0, 2, self.segment_length, self.preferences.inputs.shape[-1]), dtype=np.float32)
+        if n_queries == 0:
+            return no_inputs, np.zeros(0)
+        # the first session is uniform: the reward model knows nothing yet
+        selection = "uniform" if self.feedback_sessions == 0 else self.query_selection
+        n_candidates = n_queries if selection == "uniform" else n_queries * self.candidates_multiplier
+        candidates = sample_segment_pairs(
+            self.real_buffer, n_candidates, self.segment_length, self.max_query_episodes, self.preference_rng
+        )
+        if candidates is None:
+            self.warn_short_episodes()
+            return None, np.zeros(0)
+        inputs = candidates.inputs
+        asked_before = {entry.id for entry in self.journal_history()}
+        if asked_before:
+            fresh = np.array([query_id(pair) not in asked_before for pair in inputs])
+            candidates, inputs = candidates[fresh], inputs[fresh]
+        if len(inputs) == 0:
+            return no_inputs, np.zeros(0)
+        if selection != "uniform":
+            chosen = select_queries(self.reward_model.member_segment_returns(inputs), min(n_queries, len(inputs)), selection)
+            candidates, inputs = candidates[chosen], inputs[chosen]
+        return inputs, self.ask_teacher(candidates)
+
+    def learn_reward(self) -> None:
+        """Train the reward ensemble on every preference so far (Eqs. 1–2), then relabel the buffer with r̂."""
+        loss, accuracy, epochs = self.reward_model.train_epochs(
+            self.preferences, self.reward_epochs, self.reward_batch_size, rng=self.preference_rng
+        )
+        self.relabel()
+        correlation = self.reward_correlation()
+        self.logger.record("reward_model/loss", loss)
+        self.logger.record("reward_model/accuracy", accuracy)
+        self.logger.record("reward_model/epochs", epochs)
+        self.logger.record("reward_model/true_reward_corr", correlation)
+        if self.verbose > 0:
+            print(
+                f"feedback session {self.feedback_sessions} at step {self.num_timesteps}: "
+                f"{self.feedback_labeled}/{self.feedback_asked} labeled, reward-model accuracy {accuracy:.3f}, "
+                f"corr(r_hat, r_true) {correlation:.3f}"
+            )
+
+    def end_pretraining(self) -> None:
+        """
+        After the first feedback session: the critic learns from r̂ from now on (this step's update included, as
+        B-Pref's update_after_reset); it is reset and trained ``critic_reset_updates`` steps on r̂, as PEBBLE does
+        (with ``gradient_steps=0``, where ``learn()`` makes no gradient step at all, it is only reset).
+        """
+        self.update_reward_source()
+        self.reset_critic()
+        if self.gradient_steps != 0 and self.critic_reset_updates > 0:
+            self.train(gradient_steps=self.critic_reset_updates, batch_size=self.batch_size)
+            self.policy.set_training_mode(False)  # back to rollout mode
 
     def journal_history(self) -> list[JournalEntry]:
         """Every entry of the preference journal (read once, then kept in step with what this model appends)."""
@@ -579,7 +680,10 @@ class PEBBLE(SAC):
         self._attach_teacher()
 
     def _excluded_save_params(self) -> list[str]:
-        return [*super()._excluded_save_params(), "reward_model", "_journal_cache", "_web_teacher"]
+        excluded = [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
+        if self._named_teacher is not None and isinstance(self._named_teacher[1], InteractiveTeacher):
+            excluded.append("_named_teacher")  # a person's teacher is made again (its page, its port) when loaded
+        return excluded
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

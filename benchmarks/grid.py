@@ -1,0 +1,182 @@
+"""
+Run a grid file: configurations × tasks × seeds × feedback budgets (× PRIDE's synthetic ratios), resumably.
+
+    python benchmarks/grid.py benchmarks/grids/walker-walk-15-seeds.yml            # one run per core
+    python benchmarks/grid.py benchmarks/grids/walker-walk-15-seeds.yml --dry-run  # list the runs, and which are done
+
+A grid file (YAML) holds a few settings and one or more blocks, each a product:
+
+    description: what the grid measures
+    tier: cpu                          # hyperparams/<tier>/ (default: cpu)
+    out: benchmarks/results/runs       # run folders, relative to the repository (default: this one)
+    eval_freq: 5000                    # optional: evaluation every so many steps (default 5000)
+    eval_episodes: 5                   # optional (default 5)
+    timesteps: 0                       # optional: 0 keeps each task's n_timesteps
+    summary: true                      # optional: its rows go into the README's summary table
+    comparisons: [[rows_on_top, rows_in_place]]   # optional: P(X > Y) of two configurations of a block's task
+    runs:
+      - configurations: [pebble, rows_in_place]   # a variant label of hyperparams/<tier>/variants.yml or an algo
+        tasks: [walker-walk]
+        seeds: 0-14                    # a list, or "first-last"
+        feedback: [400]                # optional: each task's YAML max_feedback when left out
+        ratios: [0.5]                  # optional: PRIDE's synthetic_ratio, each task's YAML value when left out
+
+Each run is ``benchmarks/run.py``'s: its folder is named by ``run_name()`` and a run whose ``result.json`` exists is
+skipped, so a grid cut off half way picks up where it stopped, and the committed runs of a grid count as done. Seeds
+are outermost: every cell gets its first seed before any gets its second.
+"""
+
+import argparse
+import itertools
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import run
+
+GRID_KEYS = {"description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "runs"}
+BLOCK_KEYS = {"configurations", "tasks", "seeds", "feedback", "ratios"}
+
+
+class GridError(SystemExit):
+    """A grid file that cannot be run, with the file and what is wrong in the message."""
+
+
+def parse_seeds(value: Any, where: str) -> list[int]:
+    """``[0, 1, 2]``, ``3`` or ``"0-14"`` into a list of seeds."""
+    if isinstance(value, int):
+        return [value]
+    if isinstance(value, str):
+        first, sep, last = value.partition("-")
+        if sep and first.strip().isdigit() and last.strip().isdigit():
+            return list(range(int(first), int(last) + 1))
+    elif isinstance(value, list) and value and all(isinstance(seed, int) for seed in value):
+        return value
+    raise GridError(f"{where}: seeds must be a list of integers or 'first-last', got {value!r}")
+
+
+def as_list(value: Any, where: str, key: str) -> list:
+    values = value if isinstance(value, list) else [value]
+    if not values:
+        raise GridError(f"{where}: {key} is empty")
+    return values
+
+
+def load_grid(path: Path) -> dict[str, Any]:
+    """A grid file, its keys checked: an unknown key or a block without configurations, tasks or seeds fails here."""
+    import yaml
+
+    try:
+        grid = yaml.safe_load(Path(path).read_text())
+    except FileNotFoundError:
+        raise GridError(f"no grid file {path}") from None
+    if not isinstance(grid, dict) or "runs" not in grid:
+        raise GridError(f"{path}: a grid file is a mapping with a 'runs' list of blocks")
+    unknown = sorted(set(grid) - GRID_KEYS)
+    if unknown:
+        raise GridError(f"{path}: unknown key {', '.join(unknown)} (a grid file takes {', '.join(sorted(GRID_KEYS))})")
+    for i, block in enumerate(as_list(grid["runs"], str(path), "runs")):
+        where = f"{path}, runs[{i}]"
+        if not isinstance(block, dict):
+            raise GridError(f"{where}: a block is a mapping of {', '.join(sorted(BLOCK_KEYS))}")
+        unknown = sorted(set(block) - BLOCK_KEYS)
+        if unknown:
+            raise GridError(f"{where}: unknown key {', '.join(unknown)} (a block takes {', '.join(sorted(BLOCK_KEYS))})")
+        missing = sorted({"configurations", "tasks", "seeds"} - set(block))
+        if missing:
+            raise GridError(f"{where}: missing {', '.join(missing)}")
+    grid["path"] = Path(path)
+    return grid
+
+
+def configuration(label: str, variants: dict[str, dict[str, Any]], where: str) -> dict[str, Any]:
+    """``{"algo", "tag", "overrides", "variant"}`` of a configuration label: a variant, or a plain algorithm."""
+    if label in variants:
+        entry = variants[label]
+        return {"algo": entry["algo"], "tag": entry["tag"], "overrides": entry["overrides"], "variant": label}
+    if label in run.ALGOS:
+        return {"algo": label, "tag": "", "overrides": {}, "variant": None}
+    raise GridError(
+        f"{where}: unknown configuration {label!r}: neither an algorithm ({', '.join(run.ALGOS)}) nor a variant "
+        f"of the tier's variants.yml ({', '.join(sorted(variants)) or 'none'})"
+    )
+
+
+def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = None) -> list[dict[str, Any]]:
+    """
+    The run specs of a grid (``run.py``'s worker input), each with ``configuration`` (its label) and ``variant``
+    added; a run that two blocks both make (SAC ignores the budget, PEBBLE the ratio) is listed once.
+    """
+    tier = grid.get("tier", "cpu")
+    variants = run.load_variants(tier) if variants is None else variants
+    blocks = []
+    for i, block in enumerate(grid["runs"]):
+        where = f"{grid['path']}, runs[{i}]"
+        configurations = [(label, configuration(label, variants, where)) for label in as_list(block["configurations"], where, "configurations")]  # fmt: skip
+        blocks.append((block, where, configurations, parse_seeds(block["seeds"], where)))
+    specs, seen = [], set()
+    for block, where, configurations, seeds in blocks:
+        for seed, task, (label, config) in itertools.product(seeds, as_list(block["tasks"], where, "tasks"), configurations):
+            needs_yaml = config["algo"] != "sac" and ("feedback" not in block or "ratios" not in block)
+            _, kwargs = run.yaml_entry(tier, config["algo"], task) if needs_yaml else (0, {})
+            feedbacks = as_list(block["feedback"], where, "feedback") if "feedback" in block else [kwargs.get("max_feedback")]
+            ratios = as_list(block["ratios"], where, "ratios") if "ratios" in block else [kwargs.get("synthetic_ratio")]
+            for feedback, ratio in itertools.product(feedbacks, ratios):
+                spec = dict(algo=config["algo"], task=task, seed=seed, feedback=feedback, ratio=ratio, tier=tier,
+                            eval_freq=grid.get("eval_freq", 5000), eval_episodes=grid.get("eval_episodes", 5),
+                            timesteps=grid.get("timesteps", 0), tag=config["tag"], overrides=config["overrides"],
+                            configuration=label, variant=config["variant"])  # fmt: skip
+                if run.run_name(spec) not in seen:
+                    seen.add(run.run_name(spec))
+                    specs.append(spec)
+    return specs
+
+
+def check(specs: list[dict[str, Any]]) -> None:
+    """Every configuration's overrides are arguments its algorithm takes, and none is one the grid sets itself."""
+    checked = set()
+    for spec in specs:
+        if spec["configuration"] in checked:
+            continue
+        checked.add(spec["configuration"])
+        try:
+            run.check_overrides(spec["overrides"], [spec["algo"]])
+        except SystemExit as error:
+            raise GridError(f"variant {spec['configuration']!r}: {error}") from None
+
+
+def out_folder(grid: dict[str, Any], out: Path | None = None) -> Path:
+    """Where the grid's run folders go: ``out`` if given, else the file's ``out`` (relative to the repository)."""
+    if out is not None:
+        return out
+    return run.ROOT / grid.get("out", "benchmarks/results/runs")
+
+
+def main(argv: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("grid_file", type=Path, help="a grid file, e.g. benchmarks/grids/walker-walk-15-seeds.yml")
+    parser.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="runs at a time (default: one per core)")
+    parser.add_argument("--out", type=Path, default=None, help="run folders here instead of the grid file's out")
+    parser.add_argument("--dry-run", action="store_true", help="list the runs (and which are done), run nothing")
+    args = parser.parse_args(argv)
+    grid = load_grid(args.grid_file)
+    specs = expand(grid)
+    out = out_folder(grid, args.out)
+    if args.dry_run:
+        for spec in specs:
+            done = (out / run.run_name(spec) / "result.json").exists()
+            print(f"{'done' if done else 'todo'}  {run.run_name(spec)}")
+        n_done = sum((out / run.run_name(spec) / "result.json").exists() for spec in specs)
+        print(f"{len(specs)} runs, {n_done} done, {len(specs) - n_done} to run, in {out}")
+        return
+    check(specs)
+    failed = run.run_specs(specs, out, args.jobs)
+    if failed:
+        raise SystemExit(f"{failed} runs failed: see their log.txt")
+
+
+if __name__ == "__main__":
+    main()

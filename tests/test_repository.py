@@ -1,0 +1,197 @@
+"""
+Checks on the repository itself, not on the package's behaviour.
+
+- The product speaks of what is true of this version: no tracked file outside ``CHANGELOG.md`` and
+  ``benchmarks/results/archive/`` names a work session ("session 19", "sessions 16–18", ``speed_session19.json``),
+  a ticket ("issue 9", "issue #12", ``speed_issue9.json``) or a commit (a hash in backticks or after the word
+  "commit"). A *feedback* session is part of the algorithm and may be numbered ("feedback session 3").
+  References to other projects' tickets are written as ``owner/repo#N`` or as a URL (``.../issues/N``); neither
+  contains the word "issue" followed by a number, so both pass. A run's recorded provenance (a ``"commit":`` field in
+  a run's ``settings.json``) is data, not prose, and passes too.
+- The README stays short: a newcomer's page, the rest is in ``docs/``.
+- ``sb3_pride.common`` depends on nothing above it: no module under ``sb3_pride/common/`` imports
+  ``sb3_pride.pebble``, ``sb3_pride.pride``, ``sb3_pride.human`` or the top-level ``sb3_pride`` package.
+"""
+
+import ast
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parent.parent
+README_MAX_LINES = 150
+#: tracked paths where history belongs (a path equal to an entry, or under a folder entry)
+HISTORY_ALLOWED = ("CHANGELOG.md", "benchmarks/results/archive/")
+#: tracked paths not searched: data, not text written by people; and this file, whose examples are the patterns' own tests
+HISTORY_SKIPPED = ("tests/data/", "tests/test_repository.py")
+
+_HEX = r"(?=[0-9a-f]*[0-9])(?=[0-9a-f]*[a-f])[0-9a-f]{7,40}"  # at least one digit and one letter: not a plain number
+HISTORY_PATTERNS = {
+    # a work session, numbered: "session 19", "Sessions 16–18", "session-16", speed_session19.json; "feedback session 3"
+    # (and feedback_session, feedback-session, the logger's feedback/sessions) is the algorithm's and passes
+    "work session": re.compile(r"(?<![A-Za-z])(?<![Ff]eedback[\s_/-])[Ss]essions?[\s_-]*\d"),
+    # a ticket: "issue 9", "Issues 9 and 11", "issue #12", speed_issue9.json
+    "issue": re.compile(r"(?<![A-Za-z])[Ii]ssues?[\s_-]*#?\d"),
+    # a commit: a hash in backticks, or after "commit" / "commits" (optionally "at", or an opening parenthesis)
+    "commit hash": re.compile(rf"`{_HEX}`|\b[Cc]ommits?\s+(?:at\s+)?\(?{_HEX}\b"),
+}
+
+
+def history_mentions(text: str) -> list[tuple[str, int, str]]:
+    """
+    ``(kind, line number, line)`` for every mention of a work session, an issue or a commit in ``text``. The whole
+    text is searched, not line by line, so that a mention wrapped across lines ("session\\n19") is found and a
+    wrapped "feedback\\nsession 3" is not taken for a work session.
+    """
+    lines = text.splitlines()
+    found = []
+    for kind, pattern in HISTORY_PATTERNS.items():
+        for match in pattern.finditer(text):
+            number = text.count("\n", 0, match.start()) + 1
+            found.append((kind, number, lines[number - 1].strip() if number <= len(lines) else ""))
+    return sorted(set(found), key=lambda mention: (mention[1], mention[0]))
+
+
+@pytest.mark.parametrize(
+    "text, kinds",
+    [
+        ("as measured in session 19", {"work session"}),
+        ("Sessions 16–18 used it", {"work session"}),
+        ("the session-16 default", {"work session"}),
+        ("see speed_session19.json", {"work session"}),
+        ("in the\nsession\n19 runs", {"work session"}),
+        ("the first feedback session 1 asks uniformly", set()),
+        ("feedback sessions 2-5", set()),
+        ("feedback_session 3", set()),
+        ("asked at each feedback\nsession 3 of the run", set()),
+        ("each feedback session asks K queries", set()),
+        ("self.feedback_sessions = 0", set()),
+        ("time/fps,feedback/sessions\n3,120", set()),
+        ("JournalEntry(session=1, label=0.5)", set()),
+        ("within issue 9's bound", {"issue"}),
+        ("Issue 11 defects", {"issue"}),
+        ("fixes issue #12", {"issue"}),
+        ("speed_issue9.log", {"issue"}),
+        ("as SB3 counts it (DLR-RM/stable-baselines3#2158)", set()),
+        ("https://github.com/DLR-RM/stable-baselines3/issues/2158", set()),
+        ("a known issue with MuJoCo 4", set()),
+        ("until commit fac6b44 the reset", {"commit hash"}),
+        ("run at commit dd3fad5, when", {"commit hash"}),
+        ("the fix (commit fac6b44)", {"commit hash"}),
+        ("the results of `a746db1`", {"commit hash"}),
+        ('"commit": "a746db1c0ffee"', set()),
+        ("commit every label to disk", set()),
+        ("`1000000` steps, `deadbeef`", set()),
+        ("the hash 0x7f3a9c1 of a buffer", set()),
+        ("a decade of faced facades", set()),
+    ],
+)
+def test_history_patterns(text: str, kinds: set[str]) -> None:
+    """The patterns catch what they must and pass what they must (their own examples)."""
+    assert {kind for kind, _, _ in history_mentions(text)} == kinds
+
+
+def tracked_files() -> list[str]:
+    try:
+        listing = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout (an installed copy): the repository checks need git ls-files")
+    return [path for path in listing.decode().split("\0") if path]
+
+
+def read_text(path: Path) -> str | None:
+    """The file's text, or None for a binary file (a NUL byte or not UTF-8) or one missing from the work tree."""
+    try:
+        data = path.read_bytes()
+    except (FileNotFoundError, IsADirectoryError):
+        return None
+    if b"\0" in data[:8192]:
+        return None
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return None
+
+
+def _under(path: str, prefixes: tuple[str, ...]) -> bool:
+    return any(path == prefix or (prefix.endswith("/") and path.startswith(prefix)) for prefix in prefixes)
+
+
+def test_no_history_in_tracked_files() -> None:
+    """No tracked text file outside the changelog and the archive names a work session, an issue or a commit."""
+    offending = []
+    for path in tracked_files():
+        if _under(path, HISTORY_ALLOWED + HISTORY_SKIPPED):
+            continue
+        text = read_text(ROOT / path)
+        if text is None:
+            continue
+        offending.extend(f"{path}:{number}: {kind}: {line[:160]}" for kind, number, line in history_mentions(text))
+    assert not offending, "history outside CHANGELOG.md and benchmarks/results/archive/:\n" + "\n".join(offending)
+
+
+def test_readme_is_short() -> None:
+    lines = (ROOT / "README.md").read_text(encoding="utf-8").splitlines()
+    assert len(lines) <= README_MAX_LINES, f"README.md has {len(lines)} lines; the rest belongs in docs/"
+
+
+FORBIDDEN_IN_COMMON = ("sb3_pride.pebble", "sb3_pride.pride", "sb3_pride.human")
+
+
+def imported_modules(source: str, module: str) -> list[tuple[int, str]]:
+    """
+    ``(line, module)`` for every import in ``source`` (at any depth: in functions, under ``TYPE_CHECKING``), relative
+    imports resolved against ``module``, the dotted name of the file itself; ``from X import y`` yields ``X.y`` too,
+    so that ``from sb3_pride import pebble`` is seen as ``sb3_pride.pebble``.
+    """
+    package = module.rsplit(".", 1)[0]
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found.extend((node.lineno, alias.name) for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.rsplit(".", node.level - 1)[0] if node.level > 1 else package
+                name = f"{base}.{node.module}" if node.module else base
+            else:
+                name = node.module or ""
+            found.append((node.lineno, name))
+            found.extend((node.lineno, f"{name}.{alias.name}") for alias in node.names)
+    return found
+
+
+def forbidden_import(name: str) -> bool:
+    """An import ``common/`` must not make: the algorithms, the human UI, or the top-level package (which imports them)."""
+    return name == "sb3_pride" or any(name == prefix or name.startswith(prefix + ".") for prefix in FORBIDDEN_IN_COMMON)
+
+
+@pytest.mark.parametrize(
+    "source, forbidden",
+    [
+        ("from sb3_pride.pebble.pebble import PEBBLE", True),
+        ("import sb3_pride.pride", True),
+        ("from sb3_pride import PEBBLE", True),
+        ("from sb3_pride import human", True),
+        ("def f():\n    from ..human.web import WebTeacher", True),
+        ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from sb3_pride.pebble import PEBBLE", True),
+        ("from sb3_pride.common.queries import SegmentPairs", False),
+        ("from .queries import SegmentPairs", False),
+        ("import numpy as np", False),
+    ],
+)
+def test_forbidden_import_detection(source: str, forbidden: bool) -> None:
+    names = [name for _, name in imported_modules(source, "sb3_pride.common.example")]
+    assert any(forbidden_import(name) for name in names) == forbidden
+
+
+def test_common_imports_nothing_above_it() -> None:
+    """``sb3_pride.common`` is the bottom layer: PEBBLE, PRIDE and the human UI import it, never the reverse."""
+    offending = []
+    for path in sorted((ROOT / "sb3_pride" / "common").rglob("*.py")):
+        module = ".".join(path.relative_to(ROOT).with_suffix("").parts)
+        for line, name in imported_modules(path.read_text(encoding="utf-8"), module):
+            if forbidden_import(name):
+                offending.append(f"{path.relative_to(ROOT)}:{line}: imports {name}")
+    assert not offending, "sb3_pride/common/ imports from above it:\n" + "\n".join(offending)
