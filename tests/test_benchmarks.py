@@ -103,6 +103,7 @@ def write_run(folder: Path, algo: str, seed: int, final_return: float) -> None:
     (run / "result.json").write_text(json.dumps({"final_return": final_return}))
 
 
+@pytest.mark.slow
 def test_pooled_comparison_does_not_depend_on_the_order_of_the_folders(plot, tmp_path, monkeypatch, capsys):
     """plot.py --runs A B and --runs B A pool the same seeds: the bootstrap interval of P(X > Y) must be the same."""
     returns = {"pride": [303.6, 382.0, 342.0, 384.1, 415.6, 271.1], "pebble": [362.7, 411.2, 335.1, 309.5, 387.6, 362.7]}
@@ -286,6 +287,7 @@ def constructor_defaults(run, algo: str) -> dict:
     return defaults
 
 
+@pytest.mark.slow
 def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(grid):
     """For every run of every committed grid file, the settings the run recorded equal what the grid would run today
     (the task's YAML entry, the variant's overrides merged in, the algorithm's defaults for the rest): a grid re-run
@@ -353,6 +355,7 @@ def test_dotted_overrides_merge_into_the_yaml_entrys_nested_dict(run):
         run.parse_overrides(["generator_kwargs.=3"])
 
 
+@pytest.mark.slow
 def test_a_run_records_the_package_version_the_commit_and_the_libraries(run, tmp_path):
     """settings.json: the sb3_pride version, the git commit and whether the tree was dirty, and library versions."""
     from importlib import metadata

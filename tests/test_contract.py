@@ -31,6 +31,7 @@ TINY_DIFFUSION = merge_kwargs(
 )
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
 def test_float64_mujoco_env_through_several_sessions(tiny_kwargs, algo):
     """gymnasium's MuJoCo envs observe float64: the query selection and the diffusion must take it."""
@@ -45,6 +46,7 @@ def test_float64_mujoco_env_through_several_sessions(tiny_kwargs, algo):
         assert model.diffusion_retrains >= 2 and model.replay_buffer.synthetic.size() == 500
 
 
+@pytest.mark.slow
 def test_early_terminating_env_waits_for_episodes_that_hold_a_segment(tiny_kwargs):
     """Hopper's random episodes last ~25 steps: no segment of 100 fits yet, but longer episodes may come."""
     tiny_kwargs.update(segment_length=100)
@@ -65,6 +67,7 @@ def test_env_whose_step_limit_is_shorter_than_a_segment_is_refused():
         PEBBLE("MlpPolicy", gym.make("Pendulum-v1", max_episode_steps=30))
 
 
+@pytest.mark.slow
 def test_dual_buffer_has_sb3_storage_attributes_and_round_trips(tiny_kwargs, tmp_path):
     """Code written for SB3's ReplayBuffer (SB3's own save/load-replay-buffer test) reads the real transitions."""
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION)
@@ -163,6 +166,7 @@ def test_episode_ends_of_two_envs_and_true_terminations_are_kept():
     assert list(buffer.dones[last]) == [1, 1] and list(buffer.timeouts[last]) == [1, 0]
 
 
+@pytest.mark.slow
 def test_the_demo_shows_a_progress_bar(tmp_path):
     result = subprocess.run(
         [sys.executable, "-m", "sb3_pride", "--algo", "pebble", "--env", "Pendulum-v1", "--timesteps", "300",
@@ -174,6 +178,7 @@ def test_the_demo_shows_a_progress_bar(tmp_path):
     assert "true return of the final policy" in result.stdout
 
 
+@pytest.mark.slow
 def test_metaworld_runs_repeat_from_their_seed():
     # MT1 draws its task variations from numpy's global RNG when built and picks one before the reset's seed takes
     # effect: without SeededTasks two runs with the same seed saw different objects and goals

@@ -17,6 +17,7 @@ def mixture(n, rng):
     return centers[rng.integers(0, 8, n)] + 0.3 * rng.normal(size=(n, 2))
 
 
+@pytest.mark.slow
 def test_fits_a_mixture_of_gaussians_far_better_than_one_gaussian():
     rng = np.random.default_rng(0)
     train, held_out = mixture(4000, rng), mixture(800, rng)
@@ -28,6 +29,7 @@ def test_fits_a_mixture_of_gaussians_far_better_than_one_gaussian():
     assert diffusion_distance < 0.25 * gaussian_distance, (diffusion_distance, gaussian_distance)
 
 
+@pytest.mark.slow
 def test_samples_obey_known_linear_dynamics():
     rng = np.random.default_rng(1)
     A = np.array([[0.9, 0.2, 0.0], [-0.1, 0.95, 0.1], [0.0, 0.3, 0.8]])

@@ -64,6 +64,7 @@ def test_copies_of_the_buffer_are_not_novel(fitted):
     assert measure_fidelity(dynamics, real, fresh, 3, 1, refit=False).novelty_ratio > 0.5
 
 
+@pytest.mark.slow
 def test_heldout_anchors_are_judged_like_heldout_reals():
     """
     Near-real samples sit beside their anchors, and the ensemble fits its training rows better than held-out ones:
@@ -84,6 +85,7 @@ def test_heldout_anchors_are_judged_like_heldout_reals():
             measure_fidelity(overfit, real, real, 3, 1, refit=False, anchors=bad)
 
 
+@pytest.mark.slow
 def test_pride_flags_a_generator_with_corrupted_next_states(tiny_kwargs, tmp_path):
     """Every retrain logs the ratio; a generator whose s' are off by two typical steps reads far above 1."""
     ratios = {}

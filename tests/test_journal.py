@@ -37,6 +37,7 @@ def journal_labels(path) -> np.ndarray:
     return labels[~np.isnan(labels)]
 
 
+@pytest.mark.slow
 def test_a_new_model_takes_the_journals_answers_back_instead_of_asking(tiny_kwargs, tmp_path):
     journal = tmp_path / "run" / "preferences.jsonl"
     tiny_kwargs.update(teacher="skip", feedback_interval=100, max_feedback=40, queries_per_session=10)
@@ -107,10 +108,12 @@ def test_a_save_that_fails_midway_leaves_the_previous_checkpoint(tiny_kwargs, tm
 #: fifth session (step 600) never answers, as a person gone home: the run is killed while it waits
 WORKER = """
 import time, sys
+import torch
 from stable_baselines3.common.callbacks import CheckpointCallback
 from sb3_pride import {algo}
 from sb3_pride.common.teachers import make_teacher
 oracle, sessions = make_teacher("oracle"), []
+torch.set_num_threads(1)  # tiny networks: threads only add contention (as in the tests' own process)
 
 def teacher(pairs):
     sessions.append(len(pairs))
@@ -124,6 +127,7 @@ model.learn(700, callback=CheckpointCallback(150, "{folder}", save_replay_buffer
 """
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
 def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tmp_path, algo):
     tiny_kwargs.update(learning_starts=100, unsupervised_steps=100, feedback_interval=100, max_feedback=50,

@@ -16,6 +16,7 @@ class NaNReward(gym.Wrapper):
         return obs, float("nan"), terminated, truncated, info
 
 
+@pytest.mark.slow
 def test_short_run_on_dm_control(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", seed=0, **tiny_kwargs)
     model.learn(1200)
@@ -35,6 +36,7 @@ def test_short_run_on_dm_control(tiny_kwargs):
     assert model.ep_info_buffer[0]["r"] == pytest.approx(buffer.true_rewards[:1000, 0].sum(), rel=1e-4)
 
 
+@pytest.mark.slow
 def test_short_run_on_metaworld_reports_success(tiny_kwargs):
     tiny_kwargs.update(max_feedback=40)
     model = PEBBLE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, **tiny_kwargs)
@@ -44,6 +46,7 @@ def test_short_run_on_metaworld_reports_success(tiny_kwargs):
     assert np.isfinite(model.reward_correlation())
 
 
+@pytest.mark.slow
 def test_learner_never_sees_the_true_reward(tiny_kwargs):
     env = make_vec_env("Pendulum-v1", n_envs=2, seed=0, wrapper_class=NaNReward)
     model = PEBBLE("MlpPolicy", env, seed=0, **tiny_kwargs)
@@ -54,6 +57,7 @@ def test_learner_never_sees_the_true_reward(tiny_kwargs):
         assert th.isfinite(parameter).all()
 
 
+@pytest.mark.slow
 def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(250)  # inside pre-training (ends at 300)
@@ -66,6 +70,7 @@ def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
     np.testing.assert_allclose(samples.rewards.numpy().ravel(), expected, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["pebble", "pride"])
 def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
     """The reset updates after the first session (and every later update) use r̂, never r_int (B-Pref's
@@ -117,6 +122,7 @@ def test_critic_reset_keeps_actor(tiny_kwargs):
     assert len(model.critic.optimizer.state) == 0
 
 
+@pytest.mark.slow
 def test_save_load_round_trip_and_continue(tiny_kwargs, tmp_path):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(700)
@@ -173,6 +179,7 @@ def test_a_custom_teacher_is_checked(tiny_kwargs):
         model.learn(400)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["pebble", "pride"])
 def test_real_only_critic_diagnostics_are_logged_after_pretraining(tiny_kwargs, algo, tmp_path):
     """train/critic_loss_real and train/q_real: the critic on real-only minibatches, logged by both algorithms from
@@ -197,6 +204,7 @@ def test_real_only_critic_diagnostics_are_logged_after_pretraining(tiny_kwargs, 
     assert (progress["train/critic_loss_real"].dropna() >= 0).all()
 
 
+@pytest.mark.slow
 def test_critic_diagnostics_change_no_training_run(tiny_kwargs):
     """The diagnostics draw minibatches (PRIDE's mixed ones from NumPy's global RNG, as SB3 does) from their own
     generators: a run that logs them at every train() call trains exactly as one that never does."""
@@ -213,6 +221,7 @@ def test_critic_diagnostics_change_no_training_run(tiny_kwargs):
     th.testing.assert_close(critic_after(1), critic_after(10**9), rtol=0, atol=0)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("algo", ["pebble", "pride"])
 def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo):
     """SB3's gradient_steps=0: learn() collects and runs the feedback sessions but never calls train(); the user's own
@@ -231,3 +240,7 @@ def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo)
     assert model._n_updates == 5 and not all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
     model.feedback_session()  # a session called from the user's loop
     assert model.feedback_sessions == 2
+    if algo == "pride":
+        retrains = model.diffusion_retrains
+        report = model.retrain_generator()
+        assert model.diffusion_retrains == retrains + 1 and model.replay_buffer.synthetic.size() == len(report.vectors)

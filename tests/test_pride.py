@@ -64,6 +64,7 @@ def test_synthetic_replace_and_extend_wrap_the_ring():
     assert synthetic.size() == 10 and not synthetic.full
 
 
+@pytest.mark.slow
 def test_short_run_on_dm_control_with_two_envs(tiny_kwargs, tmp_path):
     env = make_vec_env("sb3_pride/walker-walk-v0", n_envs=2, seed=0)
     model = PRIDE("MlpPolicy", env, seed=0, gradient_steps=2, **tiny_kwargs, **TINY_DIFFUSION)
@@ -96,6 +97,7 @@ def test_short_run_on_dm_control_with_two_envs(tiny_kwargs, tmp_path):
     assert loaded.diffusion_retrains == 4 and loaded.next_diffusion_step == 1502
 
 
+@pytest.mark.slow
 def test_synthetic_rewards_follow_each_relabel(tiny_kwargs):
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION)
     model.learn(400)
@@ -111,6 +113,7 @@ def test_synthetic_rewards_follow_each_relabel(tiny_kwargs):
     )
 
 
+@pytest.mark.slow
 def test_ratio_zero_trains_exactly_like_pebble(tiny_kwargs):
     pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=3, **tiny_kwargs).learn(700)
     pride = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, synthetic_ratio=0.0, **tiny_kwargs, **TINY_DIFFUSION).learn(700)
@@ -120,6 +123,7 @@ def test_ratio_zero_trains_exactly_like_pebble(tiny_kwargs):
     np.testing.assert_array_equal(pebble.replay_buffer.rewards, pride.replay_buffer.real.rewards)
 
 
+@pytest.mark.slow
 def test_save_load_predict_identical(tiny_kwargs, tmp_path):
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION).learn(400)
     model.save(tmp_path / "pride")
@@ -131,6 +135,7 @@ def test_save_load_predict_identical(tiny_kwargs, tmp_path):
     assert loaded.synthetic_ratio == 0.5 and loaded.diffusion_interval == 300
 
 
+@pytest.mark.slow
 def test_short_run_on_metaworld_with_a_whitened_diffusion(tiny_kwargs, tmp_path):
     tiny_kwargs.update(max_feedback=40)
     model = PRIDE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, **tiny_kwargs,
@@ -185,6 +190,7 @@ def record_draws(buffer: DualReplayBuffer) -> list[tuple[str, int]]:
     return drawn
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("on_top", [False, True])
 def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs, on_top):
     """The paper's argument for synthetic data, a higher update-to-data ratio: with gradient_steps=2 every env step
@@ -203,6 +209,7 @@ def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs, on_top):
     assert drawn == [("synthetic", rows), ("real", rows)] * 20
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize(("ratio", "n_synthetic"), [(0.5, 64), (0.25, 21)])
 def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synthetic):
     """With synthetic_on_top the synthetic rows come on top of batch_size real ones (B = 64 here), as many real rows
@@ -224,6 +231,7 @@ def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synth
     assert drawn == [("synthetic", round(ratio * 64)), ("real", 64 - round(ratio * 64))] * 5
 
 
+@pytest.mark.slow
 def test_synthetic_on_top_trains_as_pebble_until_the_first_generation(tiny_kwargs):
     """With synthetic_on_top every minibatch holds batch_size real rows: until the first generation (step 600 here)
     PRIDE trains exactly as PEBBLE (bit-identical weights), the first feedback session and critic reset (step 300)
@@ -236,6 +244,7 @@ def test_synthetic_on_top_trains_as_pebble_until_the_first_generation(tiny_kwarg
         assert th.equal(p, q)
 
 
+@pytest.mark.slow
 def test_synthetic_on_top_rows_grow_with_the_ramp_of_u(tiny_kwargs):
     """While u ramps up, the synthetic rows on top grow from 0 to B·u/(1 − u) and the real rows stay batch_size."""
     kwargs = {**tiny_kwargs, **tiny_pride(generator_kwargs=dict(dynamics_kwargs=TINY_DYNAMICS)), "synthetic_ramp": 100,
@@ -251,6 +260,7 @@ def test_synthetic_on_top_rows_grow_with_the_ramp_of_u(tiny_kwargs):
     assert len(synthetic) == 450 - 301  # none before the first generation; at steps 300 and 301 round(u·M) is 0
 
 
+@pytest.mark.slow
 def test_delayed_start_and_ramp_of_u(tiny_kwargs):
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs,
                   **tiny_pride(synthetic_start=600, synthetic_ramp=300,
@@ -270,6 +280,7 @@ def test_delayed_start_and_ramp_of_u(tiny_kwargs):
     assert model.first_generation_step == 600 - 950 and model.next_diffusion_step == 1200 - 950
 
 
+@pytest.mark.slow
 def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
     model = PRIDE(
         "MlpPolicy",
@@ -286,6 +297,7 @@ def test_diffusion_window_takes_the_most_recent_transitions(tiny_kwargs):
     np.testing.assert_array_equal(vectors[:, 4:], buffer.next_observations[250:450, 0])
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("synthetic_filter", ["dynamics", "reward"])
 def test_keep_quantile_keeps_what_the_filter_trusts(tiny_kwargs, synthetic_filter):
     generator = dict(filter=synthetic_filter, keep_quantile=0.5, dynamics_kwargs=TINY_DYNAMICS)
@@ -308,6 +320,7 @@ def test_keep_quantile_keeps_what_the_filter_trusts(tiny_kwargs, synthetic_filte
         assert model.reward_model.disagreement(kept[:, :3], kept[:, 3:4]).max() <= np.sort(doubt)[200]
 
 
+@pytest.mark.slow
 def test_near_real_generation_of_state_changes(tiny_kwargs):
     generator = dict(generation="near_real", anchor_noise=0.3, model_state_change=True, dynamics_kwargs=TINY_DYNAMICS)
     model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **tiny_pride(generator_kwargs=generator))

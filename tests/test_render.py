@@ -43,6 +43,7 @@ def live_episodes(env_id: str, renderer: SegmentRenderer, seeds=(11, 12), steps:
         ("sb3_pride/reacher-easy-v0", {"geom_pos": 2}),  # dm_control's target, re-drawn at each reset
     ],
 )
+@pytest.mark.slow
 def test_recorded_states_re_render_pixel_identical_across_resets(env_id, randomized):
     renderer = SegmentRenderer(env_id, width=W, height=H)
     assert {name: len(index) for name, index in renderer.layout} == randomized
@@ -107,6 +108,7 @@ def test_clips_are_h264_yuv420p_fast_start_at_the_env_frame_rate(tmp_path):
     assert not list(tmp_path.glob("*.part"))
 
 
+@pytest.mark.slow
 def test_pride_records_states_in_its_real_buffer_and_a_saved_web_teacher_comes_back(tiny_kwargs, tmp_path):
     from sb3_pride import PRIDE
 
@@ -123,6 +125,7 @@ def test_pride_records_states_in_its_real_buffer_and_a_saved_web_teacher_comes_b
     loaded.teacher.close()
 
 
+@pytest.mark.slow
 def test_buffers_from_the_other_kind_of_teacher(tiny_kwargs, tmp_path):
     """A scripted run's buffer has no states to show: a WebTeacher refuses it. A WebTeacher run's buffer resumed with a
     scripted teacher records nothing more (its saved flag is reset), and trains."""

@@ -195,3 +195,23 @@ def test_common_imports_nothing_above_it() -> None:
             if forbidden_import(name):
                 offending.append(f"{path.relative_to(ROOT)}:{line}: imports {name}")
     assert not offending, "sb3_pride/common/ imports from above it:\n" + "\n".join(offending)
+
+
+# -- the algorithms' shape -----------------------------------------------------------------------------------------
+def test_pride_is_pebble_plus_a_few_settings() -> None:
+    """PRIDE's own constructor parameters (beyond PEBBLE's and SB3's conventions) stay few, and pride.py short."""
+    import inspect
+
+    from sb3_pride import PEBBLE, PRIDE
+
+    pebble = set(inspect.signature(PEBBLE.__init__).parameters)
+    own = [name for name in inspect.signature(PRIDE.__init__).parameters if name not in pebble | {"pebble_kwargs"}]
+    assert len(own) <= 10, own
+    assert len((ROOT / "sb3_pride/pride/pride.py").read_text().splitlines()) <= 250
+
+
+@pytest.mark.parametrize("path", ["sb3_pride/pebble/callbacks.py", "sb3_pride/pride/callbacks.py"])
+def test_callbacks_use_the_models_public_interface(path: str) -> None:
+    """The callbacks drive the phases through public methods and attributes: no `model._...`, no SB3 privates."""
+    private = re.findall(r"\bmodel\._\w+", (ROOT / path).read_text())
+    assert not private, private

@@ -1,10 +1,17 @@
 import numpy as np
+import pytest
 import torch as th
 from scipy.stats import spearmanr
 
-from sb3_pride import ScriptedTeacher
+from sb3_pride import PEBBLE, ScriptedTeacher
 from sb3_pride.common.queries import SegmentPairs
-from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, preference_loss
+from sb3_pride.common.reward_model import (
+    PreferenceDataset,
+    RewardEnsemble,
+    check_temporal_crop,
+    crop_pairs,
+    preference_loss,
+)
 
 
 def test_bradley_terry_loss_by_hand():
@@ -47,3 +54,96 @@ def test_untrained_members_disagree_and_predict_is_their_mean():
     assert per_member.std(axis=0).mean() > 1e-3
     np.testing.assert_allclose(model.predict(obs, actions), per_member.mean(axis=0), rtol=1e-5, atol=1e-6)
     assert np.all(np.abs(per_member) <= 1.0)  # tanh output
+
+
+def test_temporal_crop_keeps_each_pair_and_its_label_and_crops_both_segments_to_one_length():
+    rng = np.random.default_rng(0)
+    members, b, k, d = 3, 64, 20, 2
+    # step t of segment j of pair i holds (t, 1000 i + j): every gathered row says where it came from
+    steps = np.broadcast_to(np.arange(k)[None, None, None, :], (members, b, 2, k)).astype(np.float32)
+    ids = np.broadcast_to((1000 * np.arange(b)[None, :, None] + np.arange(2)[None, None, :])[..., None], (members, b, 2, k))
+    inputs = th.as_tensor(np.stack([steps, ids.astype(np.float32)], axis=-1))
+    labels = th.as_tensor(rng.integers(0, 2, size=(members, b)).astype(np.float32))
+    cropped, mask, cropped_labels = crop_pairs(inputs, labels, (5, 12), rng)
+
+    assert cropped.shape == (members, b, 2, 12, d) and mask.shape == (members, b, 2, 12)
+    assert th.equal(cropped_labels, labels)  # the pair keeps its label
+    assert th.equal(cropped[..., 1], inputs[..., :12, 1])  # every crop comes from its own pair and segment
+    lengths = mask.sum(dim=-1)
+    assert th.equal(lengths[..., 0], lengths[..., 1])  # one length per pair
+    assert lengths.min() == 5 and lengths.max() == 12  # the whole range is drawn
+    assert th.all(mask[..., :5] == 1)  # the kept steps come first
+    kept_steps = cropped[..., 0]
+    first = kept_steps[..., 0]
+    # consecutive steps of the segment, inside it, with a start of its own in each segment
+    offsets = th.arange(12, dtype=th.float32)
+    assert th.all(((kept_steps - first[..., None]) == offsets) | (mask == 0))
+    assert th.all((first + lengths - 1) <= k - 1)
+    assert (first[..., 0] != first[..., 1]).float().mean() > 0.5
+
+
+def test_temporal_crop_trains_and_member_returns_take_any_segment_length():
+    rng = np.random.default_rng(0)
+    th.manual_seed(0)
+    n, k, obs_dim, act_dim = 200, 10, 4, 2
+    obs = rng.normal(size=(n, 2, k, obs_dim)).astype(np.float32)
+    actions = rng.uniform(-1, 1, size=(n, 2, k, act_dim)).astype(np.float32)
+    labels = ScriptedTeacher.from_preset("oracle")(SegmentPairs(obs, actions, true_reward(obs, actions)))
+    dataset = PreferenceDataset(k, obs_dim + act_dim)
+    dataset.add(np.concatenate([obs, actions], axis=-1), labels)
+    model = RewardEnsemble(obs_dim, act_dim, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
+    _loss, accuracy, _epochs = model.train_epochs(dataset, 100, batch_size=64, rng=rng, temporal_crop=(6, 8))
+    assert accuracy > 0.8
+    held_obs = rng.normal(size=(2000, obs_dim)).astype(np.float32)
+    held_actions = rng.uniform(-1, 1, size=(2000, act_dim)).astype(np.float32)
+    assert spearmanr(model.predict(held_obs, held_actions), true_reward(held_obs, held_actions)).statistic > 0.8
+
+    # a segment of any length: the sum of r̂ over its steps
+    short = np.concatenate([obs, actions], axis=-1)[:5, :, :7]
+    returns = model.member_segment_returns(short).numpy()
+    per_step = model(th.as_tensor(short)).detach().numpy()[..., 0]
+    np.testing.assert_allclose(returns, per_step.sum(axis=-1), rtol=1e-5, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    "bad", [5, (5,), (5, 6, 7), (5.0, 6), ("5", 6), (True, 6), (0, 5), (-1, 5), (6, 5), (5, 11), (11, 11)]
+)
+def test_bad_temporal_crop_names_the_parameter(bad):
+    with pytest.raises(ValueError, match="temporal_crop"):
+        check_temporal_crop(bad, segment_length=10)
+    dataset = PreferenceDataset(10, 3)
+    dataset.add(np.zeros((4, 2, 10, 3)), np.ones(4))
+    with pytest.raises(ValueError, match="temporal_crop"):
+        RewardEnsemble(2, 1, net_arch=(8,)).train_epochs(dataset, 1, temporal_crop=bad)
+    with pytest.raises(ValueError, match="temporal_crop"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", segment_length=10, temporal_crop=bad)
+
+
+def test_check_temporal_crop_accepts_none_and_pairs():
+    assert check_temporal_crop(None, 50) is None
+    assert check_temporal_crop([35, 45], 50) == (35, 45)
+    assert check_temporal_crop((np.int64(50), 50), 50) == (50, 50)
+    assert check_temporal_crop((1, 1)) == (1, 1)
+
+
+def test_pebble_with_temporal_crop_trains_in_a_short_run(tiny_kwargs):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, temporal_crop=(6, 8), **tiny_kwargs)
+    assert model.temporal_crop == (6, 8) and PEBBLE("MlpPolicy", "Pendulum-v1").temporal_crop is None
+    calls = []
+    train_epochs = model.reward_model.train_epochs
+
+    def spy(*args, **kwargs):
+        calls.append(kwargs.get("temporal_crop"))
+        return train_epochs(*args, **kwargs)
+
+    model.reward_model.train_epochs = spy  # type: ignore[method-assign]
+    model.learn(700)
+    # sessions at 300 (end of pre-training) and 600, each training r̂ on the cropped pairs
+    assert model.feedback_sessions == 2 and calls == [(6, 8), (6, 8)]
+    assert len(model.preferences) == 40 and model.preferences.inputs.shape[2] == 10  # D keeps whole segments
+    buffer = model.replay_buffer
+    n = buffer.pos
+    np.testing.assert_allclose(
+        buffer.rewards[:n, 0], model.reward_model.predict(buffer.observations[:n, 0], buffer.actions[:n, 0]), atol=1e-5
+    )
+    assert np.isfinite(model.reward_correlation())

@@ -99,6 +99,8 @@ def test_a_timeout_skips_the_rest(open_session, capsys):
     assert "timeout, 1 queries skipped" in capsys.readouterr().out
 
 
+@pytest.mark.slow
+@pytest.mark.browser
 def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path):
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service

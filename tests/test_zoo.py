@@ -37,7 +37,7 @@ def entries(name):
 
 
 def zoo(*args, cwd, gl="disable"):
-    env = {**os.environ, "MUJOCO_GL": gl}
+    env = {**os.environ, "MUJOCO_GL": gl, "OMP_NUM_THREADS": "1"}  # tiny networks: threads only add contention
     result = subprocess.run([sys.executable, "-m", "sb3_pride.zoo", *args], cwd=cwd, env=env, capture_output=True, text=True)
     assert result.returncode == 0, result.stdout[-3000:] + result.stderr[-3000:]
     return result.stdout
@@ -79,6 +79,7 @@ def test_recipes_are_named_not_copied():
         assert "recipe" not in entry and set(entry.get("generator_kwargs", {})) <= {"train_steps"}
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", FILES)
 def test_every_shipped_entry_builds_a_model(name, tmp_path):
     register()
@@ -98,6 +99,7 @@ def test_every_shipped_entry_builds_a_model(name, tmp_path):
         model.get_env().close()
 
 
+@pytest.mark.slow
 def test_cli_trains_enjoys_and_resumes_pride_on_dm_control(tmp_path):
     conf = str(HYPERPARAMS / "cpu/pride.yml")
     zoo("train", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-n", "400", "-f", "logs", "-conf", conf,
@@ -123,6 +125,7 @@ def test_cli_trains_enjoys_and_resumes_pride_on_dm_control(tmp_path):
     assert resumed.next_diffusion_step == 665
 
 
+@pytest.mark.slow
 def test_cli_trains_pebble_on_metaworld_with_default_hyperparams(tmp_path):
     # no -conf: the shipped pebble.yml is found for sb3_pride/button-press-v3
     zoo("train", "--algo", "pebble", "--env", "sb3_pride/button-press-v3", "-n", "600", "-f", "logs",
@@ -136,6 +139,7 @@ def test_cli_trains_pebble_on_metaworld_with_default_hyperparams(tmp_path):
     assert "successes" in evaluations and evaluations["results"].shape == (1, 1)
 
 
+@pytest.mark.slow
 def test_optimize_two_trials_with_sqlite_storage(tmp_path):
     import optuna
 
@@ -149,6 +153,7 @@ def test_optimize_two_trials_with_sqlite_storage(tmp_path):
     assert len(finished) == 2 and "feedback_interval" in finished[0].params
 
 
+@pytest.mark.slow
 def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp_path):
     """--save-freq with --save-replay-buffer saves the buffer with every checkpoint; -i from a checkpoint loads it, and
     the preference journal gives back the answers given after that checkpoint instead of asking again."""
@@ -172,6 +177,7 @@ def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
 
 
+@pytest.mark.slow
 def test_zoo_takes_the_web_teacher_and_records_render_states(tmp_path):
     """`teacher:'web'` through the CLI: a WebTeacher is attached (it serves its page) and the buffer records states."""
     skip_unless(egl_renders(), "headless EGL (MUJOCO_GL=egl) to render the clips")
