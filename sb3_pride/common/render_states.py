@@ -150,6 +150,6 @@ def enable_render_states(vec_env: Any, layout: Layout) -> int:
     except AttributeError:
         raise ValueError(
             "the env does not record render states: make it with gymnasium.make('sb3_pride/...') (RenderStates is "
-            "on every sb3_pride env) or wrap it with sb3_pride.human.RenderStates"
+            "on every sb3_pride env) or wrap it with sb3_pride.common.render_states.RenderStates"
         ) from None
     return int(sizes[0])
