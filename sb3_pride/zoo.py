@@ -24,6 +24,7 @@ from stable_baselines3.common.callbacks import CheckpointCallback
 
 from sb3_pride.pebble import PEBBLE
 from sb3_pride.pride import PRIDE
+from sb3_pride.common.utils import merge_kwargs
 from sb3_pride.pride.recipes import expand_recipe
 
 ZOO_ALGOS = {"pride": PRIDE, "pebble": PEBBLE}
@@ -127,6 +128,23 @@ def _continue_step_count(manager_class: type) -> type:
     """
 
     class ExperimentManager(manager_class):  # type: ignore[misc, valid-type]
+        def objective(self, trial: Any) -> float:
+            # rl-zoo3 updates the entry with the sampled values key by key: a sampled generator_kwargs would replace
+            # the entry's (a recipe's generator) instead of changing one of its settings, so it is merged here
+            import rl_zoo3.hyperparams_opt as hpo
+
+            sampler = hpo.HYPERPARAMS_SAMPLER[self.algo]
+            base = self._hyperparams.get("generator_kwargs") or {}
+
+            def merged(*args: Any) -> dict[str, Any]:
+                return merge_kwargs({"generator_kwargs": base}, sampler(*args)) if base else sampler(*args)
+
+            hpo.HYPERPARAMS_SAMPLER[self.algo] = merged  # type: ignore[assignment]
+            try:
+                return super().objective(trial)
+            finally:
+                hpo.HYPERPARAMS_SAMPLER[self.algo] = sampler
+
         def read_hyperparameters(self) -> tuple[dict[str, Any], dict[str, Any]]:
             # a `recipe:` (sb3_pride.pride.recipes) becomes the settings it names, the entry's own on top
             hyperparams, saved = super().read_hyperparameters()

@@ -1,3 +1,4 @@
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
@@ -369,3 +370,26 @@ def test_bad_mixing_input_names_the_parameter():
     with pytest.raises(ValueError, match="synthetic_on_top=True needs synthetic_ratio < 1"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=True)
     PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=False)  # every row synthetic: in place
+
+
+def test_a_model_saved_by_version_0_1_0_loads_with_its_generator_and_teacher():
+    """``tests/data/pride_0.1.0.zip`` was saved by version 0.1.0 (flat generator settings, its diffusion weights under
+    "diffusion", teacher="mistake"): its settings move into generator_kwargs, its weights into the generator, and the
+    scripted teacher goes on with its random state."""
+    from pathlib import Path
+
+    data = Path(__file__).parent / "data"
+    model = PRIDE.load(data / "pride_0.1.0.zip", env=gym.make("Pendulum-v1"))
+    assert model.generator_kwargs["width"] == 16 and model.generator_kwargs["window"] is None
+    assert model.generator.diffusion_options["n_blocks"] == 1 and not hasattr(model, "diffusion_width")
+    assert model.generator.diffusion is not None and model.model_terminals is False
+    np.testing.assert_array_equal(model.resolve_teacher().rng.random(3), np.load(data / "pride_0.1.0_next_draws.npy"))
+    model.learn(100, reset_num_timesteps=False)
+
+
+def test_generator_settings_as_keywords_of_their_own_are_pointed_to_generator_kwargs():
+    with pytest.raises(ValueError, match=r"diffusion_width -> generator_kwargs=\{'width': \.\.\.\}"):
+        PRIDE("MlpPolicy", "Pendulum-v1", diffusion_width=64)
+    for bad in (dict(seed=1), dict(device="cpu")):
+        with pytest.raises(ValueError, match="seed and device are PRIDE's"):
+            PRIDE("MlpPolicy", "Pendulum-v1", generator_kwargs=bad)

@@ -55,12 +55,12 @@ def test_held_out_episodes_never_give_a_training_pair():
     assert not any(tuple(o) in held_obs for o in pairs.observations.reshape(-1, 3))
 
 
-@pytest.mark.parametrize("config", [{}, {"temporal_crop": (6, 9)}])
-def test_screen_learns_from_oracle_labels_and_a_flipping_teacher_reads_far_worse(config):
+@pytest.mark.parametrize("config, sessions", [({}, False), ({"temporal_crop": (6, 9)}, False), ({}, True)])
+def test_screen_learns_from_oracle_labels_and_a_flipping_teacher_reads_far_worse(config, sessions):
     th.set_num_threads(1)
     steps = recorded_steps()
-    good = reward_bench.screen_one(steps, config, 0, [20, 60], TINY_REWARD)
-    bad = reward_bench.screen_one(steps, {**config, "flip_labels": True}, 0, [20, 60], TINY_REWARD)
+    good = reward_bench.screen_one(steps, config, 0, [20, 60], TINY_REWARD, sessions=sessions)
+    bad = reward_bench.screen_one(steps, {**config, "flip_labels": True}, 0, [20, 60], TINY_REWARD, sessions=sessions)
     assert set(good) == set(bad) == {20, 60}
     assert good[60]["corr"] > 0.7 and good[60]["pair_accuracy"] > 0.8
     # every label flipped: r̂ learns -r

@@ -127,19 +127,22 @@ def test_check_temporal_crop_accepts_none_and_pairs():
 
 
 def test_pebble_with_temporal_crop_trains_in_a_short_run(tiny_kwargs):
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, temporal_crop=(6, 8), **tiny_kwargs)
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, temporal_crop=(6, 8), reward_early_stop=None, **tiny_kwargs)
     assert model.temporal_crop == (6, 8) and PEBBLE("MlpPolicy", "Pendulum-v1").temporal_crop is None
-    calls = []
+    calls, epochs_run = [], []
     train_epochs = model.reward_model.train_epochs
 
     def spy(*args, **kwargs):
-        calls.append(kwargs.get("temporal_crop"))
-        return train_epochs(*args, **kwargs)
+        calls.append((kwargs.get("temporal_crop"), kwargs.get("target_accuracy")))
+        result = train_epochs(*args, **kwargs)
+        epochs_run.append(result[2])
+        return result
 
     model.reward_model.train_epochs = spy  # type: ignore[method-assign]
     model.learn(700)
-    # sessions at 300 (end of pre-training) and 600, each training r̂ on the cropped pairs
-    assert model.feedback_sessions == 2 and calls == [(6, 8), (6, 8)]
+    # sessions at 300 (end of pre-training) and 600, each training r̂ on the cropped pairs, every epoch
+    assert model.feedback_sessions == 2 and calls == [((6, 8), 1.0), ((6, 8), 1.0)]
+    assert epochs_run == [tiny_kwargs["reward_epochs"]] * 2
     assert len(model.preferences) == 40 and model.preferences.inputs.shape[2] == 10  # D keeps whole segments
     buffer = model.replay_buffer
     n = buffer.pos
@@ -147,3 +150,11 @@ def test_pebble_with_temporal_crop_trains_in_a_short_run(tiny_kwargs):
         buffer.rewards[:n, 0], model.reward_model.predict(buffer.observations[:n, 0], buffer.actions[:n, 0]), atol=1e-5
     )
     assert np.isfinite(model.reward_correlation())
+
+
+def test_reward_early_stop_is_pebbles_97_percent_unless_told():
+    assert PEBBLE("MlpPolicy", "Pendulum-v1").reward_early_stop == 0.97
+    assert PEBBLE("MlpPolicy", "Pendulum-v1", reward_early_stop=None).reward_early_stop is None
+    for bad in (0, 1, 1.5, -0.1, float("nan"), "0.9", True):
+        with pytest.raises(ValueError, match="reward_early_stop"):
+            PEBBLE("MlpPolicy", "Pendulum-v1", reward_early_stop=bad)

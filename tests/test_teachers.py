@@ -84,3 +84,50 @@ def test_presets_and_bad_input():
         ScriptedTeacher(eps_mistake=1.5)
     with pytest.raises(ValueError, match="beta"):
         ScriptedTeacher(beta=0.0)
+
+
+def test_a_registered_teacher_is_made_from_its_name_and_saved_as_a_name(tiny_kwargs, tmp_path):
+    """A teacher registered by name (here one that cannot be pickled: it holds a lock) is made again when loaded."""
+    import threading
+
+    from sb3_pride import PEBBLE
+    from sb3_pride.common.teachers import TEACHERS, register_teacher
+
+    class Judge:
+        def __init__(self, seed):
+            self.lock, self.seed = threading.Lock(), seed
+
+        def __call__(self, pairs):
+            return (pairs.true_rewards.sum(-1)[:, 1] > pairs.true_rewards.sum(-1)[:, 0]).astype(float)
+
+    register_teacher("judge", Judge)
+    try:
+        model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, teacher="judge", **tiny_kwargs).learn(400)
+        assert model.feedback_labeled > 0 and model.resolve_teacher().seed == 4
+        model.save(tmp_path / "model")
+        loaded = PEBBLE.load(tmp_path / "model")
+        assert loaded.teacher == "judge" and isinstance(loaded.resolve_teacher(), Judge)
+    finally:
+        TEACHERS.pop("judge")
+    with pytest.raises(ValueError, match="factory must be callable"):
+        register_teacher("judge", "not a factory")
+
+
+def test_only_a_subclass_is_an_interactive_teacher(tiny_kwargs):
+    """A callable that happens to have `attach` and `ask` attributes is a plain Teacher: called, and journaled."""
+    from sb3_pride import PEBBLE
+    from sb3_pride.common.teachers import InteractiveTeacher, make_teacher
+
+    oracle = make_teacher("oracle")
+
+    class Lookalike:
+        attach = ask = None
+
+        def __call__(self, pairs):
+            return oracle(pairs)
+
+    assert not isinstance(Lookalike(), InteractiveTeacher)
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=Lookalike(), **tiny_kwargs).learn(400)
+    assert model.feedback_asked > 0
+    with pytest.raises(TypeError):
+        InteractiveTeacher()  # abstract: attach and ask must be written

@@ -24,6 +24,70 @@ def preference_loss(returns: th.Tensor, labels: th.Tensor) -> th.Tensor:
     return -((1.0 - labels) * log_p[..., 0] + labels * log_p[..., 1]).mean()
 
 
+def check_temporal_crop(temporal_crop: object, segment_length: int | None = None) -> tuple[int, int] | None:
+    """
+    ``temporal_crop`` as a ``(min_length, max_length)`` tuple of ints, or None (no cropping).
+
+    :param temporal_crop: None or a pair of ints with ``1 <= min_length <= max_length``
+    :param segment_length: the labelled segments' length, which ``max_length`` may not exceed (None: not checked)
+    :raise ValueError: naming ``temporal_crop`` for anything else
+    """
+    if temporal_crop is None:
+        return None
+    if (
+        not isinstance(temporal_crop, (tuple, list))
+        or len(temporal_crop) != 2
+        or any(isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) for v in temporal_crop)
+    ):
+        raise ValueError(f"temporal_crop must be None or a pair of ints (min_length, max_length), got {temporal_crop!r}")
+    min_length, max_length = int(temporal_crop[0]), int(temporal_crop[1])
+    if min_length < 1:
+        raise ValueError(f"temporal_crop: min_length must be >= 1, got {temporal_crop!r}")
+    if min_length > max_length:
+        raise ValueError(f"temporal_crop: min_length must be <= max_length, got {temporal_crop!r}")
+    if segment_length is not None and max_length > segment_length:
+        raise ValueError(
+            f"temporal_crop: max_length must be <= segment_length ({segment_length}): a crop lies inside the labelled "
+            f"segment, got {temporal_crop!r}"
+        )
+    return min_length, max_length
+
+
+def crop_pairs(
+    inputs: th.Tensor,
+    labels: th.Tensor,
+    temporal_crop: tuple[int, int],
+    rng: np.random.Generator,
+) -> tuple[th.Tensor, th.Tensor, th.Tensor]:
+    """
+    SURF's temporal cropping of labelled pairs (Park et al., ICLR 2022, "temporal data augmentation"; also QPA,
+    Hu et al., ICLR 2024): each pair (σ0, σ1) gets one length L, uniform in ``[min_length, max_length]``, and each of
+    its two segments its own start, uniform in ``[0, k - L]``; the pair keeps its label (a preference between the
+    segments is assumed to hold between slightly shifted, shorter windows of them). The crops are gathered into
+    ``max_length`` steps, the steps past L masked out, so that a cropped return is ``(r̂ · mask).sum(-1)``.
+
+    :param inputs: (..., 2, k, input_dim) a minibatch of pairs
+    :param labels: (...) their labels μ
+    :param temporal_crop: (min_length, max_length), ``max_length <= k``
+    :param rng: draws the lengths and starts
+    :return: the cropped inputs (..., 2, max_length, input_dim), the mask of the kept steps (..., 2, max_length)
+        (L ones, then zeros; the same L in both segments of a pair) and the labels, unchanged
+    """
+    min_length, max_length = temporal_crop
+    *batch_shape, two, k, input_dim = inputs.shape
+    if two != 2 or max_length > k:
+        raise ValueError(f"temporal_crop {temporal_crop} needs pairs of segments of >= {max_length} steps, got {inputs.shape}")
+    lengths = rng.integers(min_length, max_length + 1, size=(*batch_shape, 1, 1))  # one L per pair
+    starts = rng.integers(0, k - lengths + 1, size=(*batch_shape, 2, 1))  # its own start in each segment
+    steps = np.arange(max_length)
+    # steps past L repeat the crop's last step (any valid row would do: they are masked out)
+    index = starts + np.minimum(steps, lengths - 1)  # (..., 2, max_length)
+    index_t = th.as_tensor(index, device=inputs.device)
+    cropped = th.gather(inputs, -2, index_t.unsqueeze(-1).expand(*index.shape, input_dim))
+    mask = th.as_tensor(steps < lengths, dtype=inputs.dtype, device=inputs.device).expand(*index.shape)
+    return cropped, mask, labels
+
+
 class PreferenceDataset:
     """
     The preference dataset D: segment pairs as (s, a) inputs and the teacher's labels μ.
@@ -142,7 +206,10 @@ class RewardEnsemble(nn.Module):
 
     @th.no_grad()
     def member_segment_returns(self, inputs: np.ndarray, batch_size: int = 256) -> th.Tensor:
-        """Each member's return of each segment: (n, 2, k, input_dim) -> (members, n, 2)."""
+        """
+        Each member's return of each segment: (n, 2, k, input_dim) -> (members, n, 2), the sum of r̂ over the k steps;
+        any k (r̂ is per step: segments shorter than the labelled ones, e.g. crops, are shorter sums).
+        """
         chunks = [
             self(th.as_tensor(inputs[i : i + batch_size], dtype=th.float32, device=self.device)).sum(dim=(-2, -1))
             for i in range(0, len(inputs), batch_size)
@@ -156,15 +223,21 @@ class RewardEnsemble(nn.Module):
         batch_size: int = 128,
         target_accuracy: float = 0.97,
         rng: np.random.Generator | None = None,
+        temporal_crop: tuple[int, int] | None = None,
     ) -> tuple[float, float, int]:
         """
         Train on D for up to ``max_epochs`` epochs, each member on its own shuffling of D (the loss is summed
-        over members); stop early once the training accuracy of an epoch exceeds ``target_accuracy`` (PEBBLE).
-        Accuracy counts pairs with a strict label (0 or 1) that the member ranks the same way.
+        over members); stop early once the training accuracy of an epoch exceeds ``target_accuracy`` (PEBBLE; 1.0
+        or more: never, every epoch runs). Accuracy counts pairs with a strict label (0 or 1) that the member ranks
+        the same way (on the cropped returns when cropping, as SURF does).
 
+        :param temporal_crop: SURF's temporal cropping (``crop_pairs``): at every minibatch each member sees each
+            pair cropped to a random length in ``[min_length, max_length]``, with its own random start in each
+            segment. None: whole segments (PEBBLE)
         :return: (last epoch's mean loss per member, its accuracy, epochs run)
         """
         rng = rng if rng is not None else np.random.default_rng()
+        temporal_crop = check_temporal_crop(temporal_crop, dataset.inputs.shape[2])
         inputs = th.as_tensor(dataset.inputs, device=self.device)
         labels = th.as_tensor(dataset.labels, device=self.device)
         n = len(labels)
@@ -175,8 +248,12 @@ class RewardEnsemble(nn.Module):
             for start in range(0, n, batch_size):
                 idx = orders[:, start : start + batch_size]  # (members, b): each member its own minibatch
                 batch, batch_labels = inputs[idx], labels[idx]  # (members, b, 2, k, d), (members, b)
-                rewards = self.members(batch.reshape(self.n_members, -1, self.input_dim))
-                returns = rewards.reshape(*batch.shape[:-1]).sum(dim=-1)  # (members, b, 2): R̂0, R̂1
+                if temporal_crop is not None:
+                    batch, mask, batch_labels = crop_pairs(batch, batch_labels, temporal_crop, rng)
+                rewards = self.members(batch.reshape(self.n_members, -1, self.input_dim)).reshape(*batch.shape[:-1])
+                if temporal_crop is not None:
+                    rewards = rewards * mask  # a cropped segment's return sums r̂ over its L kept steps
+                returns = rewards.sum(dim=-1)  # (members, b, 2): R̂0, R̂1 (Eq. 1)
                 # Eq. 2 for each member, summed over members
                 loss = preference_loss(returns, batch_labels) * self.n_members
                 self.optimizer.zero_grad()

@@ -6,6 +6,7 @@ the segments (a person), B-Pref's scripted teachers, and the registry that resol
 import functools
 from collections.abc import Callable
 from dataclasses import dataclass
+from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -51,22 +52,29 @@ class FeedbackContext:
     retract: Callable[[int], None]
 
 
-@runtime_checkable
-class InteractiveTeacher(Protocol):
+class InteractiveTeacher(ABC):
     """
-    A teacher that watches the segments and answers over time (a person behind a UI). It is never given the model,
+    A teacher that watches the segments and answers over time (a person behind a UI). Subclass it: the algorithms
+    treat a teacher as interactive only if it is one (a plain callable is a ``Teacher``). It is never given the model,
     only what it needs:
 
     - ``attach(env, buffer)``, when the model is made, loaded or given a new env: check that ``env`` can be shown and
       switch on the recording of what it needs to show it beside the transitions of ``buffer`` (e.g. simulator
       states: ``SegmentPairs.render_states``); raise ``ValueError`` if it cannot;
     - ``ask(pairs, context)``, at each feedback session: one μ per pair (0, 1, 0.5, or NaN for a skip), every
-      answer journaled by ``context.record`` as it is given (a crash mid-session loses none).
+      answer journaled by ``context.record`` as it is given (a crash mid-session loses none);
+    - ``show_progress(asked, budget)``, when attached and after every feedback session: the run's queries asked so
+      far and its budget, for a UI to show (optional).
     """
 
+    @abstractmethod
     def attach(self, env: "VecEnv", buffer: "PreferenceReplayBuffer") -> None: ...
 
+    @abstractmethod
     def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray: ...
+
+    def show_progress(self, asked: int, budget: int) -> None:  # noqa: B027 (optional: nothing to show by default)
+        """The run's queries asked so far and its budget (``max_feedback``)."""
 
 
 #: B-Pref's simulated teachers (README of rll-research/BPref); ``beta=None`` is perfectly rational

@@ -24,7 +24,7 @@ import numpy as np
 from sb3_pride.common.journal import JournalEntry
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.render_states import enable_render_states
-from sb3_pride.common.teachers import FeedbackContext, register_teacher
+from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, register_teacher
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
@@ -62,7 +62,7 @@ class _Session:
         return [query for query in self.queries if not query.answered]
 
 
-class WebTeacher:
+class WebTeacher(InteractiveTeacher):
     """
     An ``InteractiveTeacher`` that asks a person, on a local web page (``http://host:port/``), which of two segments is better.
 
@@ -206,6 +206,11 @@ class WebTeacher:
             self._temporary_dir = tempfile.mkdtemp(prefix="sb3_pride_clips_")
             atexit.register(shutil.rmtree, self._temporary_dir, ignore_errors=True)
         return Path(self._temporary_dir)
+
+    def show_progress(self, asked: int, budget: int) -> None:
+        """The run's queries asked so far and its budget, shown on the page between sessions."""
+        with self._condition:
+            self._budget = {"max": budget, "asked": asked}
 
     # a feedback session -----------------------------------------------------------------------------------------
     def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray:

@@ -21,8 +21,8 @@ from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretraining
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, query_id
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows, sample_segment_pairs, select_queries
-from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
-from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, Teacher, make_teacher
+from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, check_temporal_crop
+from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
 from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
@@ -71,8 +71,17 @@ class PEBBLE(SAC):
     :param reward_net_arch: hidden layers of each member (PEBBLE: 3 × 256)
     :param reward_learning_rate: Adam step size of the reward model (PEBBLE: 3e-4)
     :param reward_batch_size: preference pairs per reward minibatch (PEBBLE: 128)
-    :param reward_epochs: most epochs over the preference dataset per session, stopping early at 97% training
-        accuracy (PEBBLE: 50 on DMC, 10 on Meta-World)
+    :param reward_epochs: most epochs over the preference dataset per session, stopping early at
+        ``reward_early_stop`` training accuracy (PEBBLE: 50 on DMC, 10 on Meta-World)
+    :param reward_early_stop: PEBBLE's early stop of reward learning (Lee et al., 2021; B-Pref's 97%): a feedback
+        session's training ends after the first epoch whose training accuracy exceeds it. None: every one of
+        ``reward_epochs`` runs (at low budgets the early stop under-trains r̂: ``benchmarks/reward_bench.py``)
+    :param temporal_crop: temporal cropping of labelled pairs, from SURF (Park et al., ICLR 2022): at every reward
+        minibatch each pair is cropped to one random length L in ``(min_length, max_length)`` (inclusive) with its own
+        random start in each segment, and keeps its label; the loss compares the cropped returns. SURF crops 45–55
+        steps out of 60 stored around each 50-step labelled segment; crops here lie inside the labelled segment, so
+        ``max_length <= segment_length``: (35, 45) at segment 50 is QPA's S−15..S−5 (Hu et al., ICLR 2024).
+        None: whole segments (PEBBLE)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
     :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
         or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
@@ -133,6 +142,8 @@ class PEBBLE(SAC):
         reward_learning_rate: float = 3e-4,
         reward_batch_size: int = 128,
         reward_epochs: int = 50,
+        reward_early_stop: float | None = 0.97,
+        temporal_crop: tuple[int, int] | None = None,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
         _init_setup_model: bool = True,
@@ -155,6 +166,9 @@ class PEBBLE(SAC):
             raise ValueError(f"gradient_steps must be an integer, got {gradient_steps!r}")
         check_choice("query_selection", query_selection, QUERY_SELECTIONS)
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
+        temporal_crop = check_temporal_crop(temporal_crop, segment_length)
+        if reward_early_stop is not None:
+            check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
         if n_steps != 1:
             raise ValueError(
                 f"n_steps must be 1, got {n_steps}: n-step returns sum stored rewards along a trajectory, but PEBBLE "
@@ -222,6 +236,8 @@ class PEBBLE(SAC):
         self.reward_learning_rate = reward_learning_rate
         self.reward_batch_size = reward_batch_size
         self.reward_epochs = reward_epochs
+        self.reward_early_stop = reward_early_stop
+        self.temporal_crop = temporal_crop
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         # learning state, saved with the model
@@ -302,6 +318,10 @@ class PEBBLE(SAC):
         return model
 
     def _setup_model(self) -> None:
+        if "_scripted_teacher" in self.__dict__:  # a model saved by version 0.1.0: its scripted teacher, random state kept
+            saved = self.__dict__.pop("_scripted_teacher")
+            self._named_teacher = saved if saved is not None else self._named_teacher
+            self.__dict__.pop("_web_teacher", None)
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         self.reward_model = RewardEnsemble(
@@ -427,6 +447,7 @@ class PEBBLE(SAC):
         if isinstance(teacher, InteractiveTeacher):
             if self.env is not None:
                 teacher.attach(self.env, self.real_buffer)
+                teacher.show_progress(self.feedback_asked, self.max_feedback)
         elif getattr(self, "replay_buffer", None) is not None:  # a resumed buffer may say otherwise
             self.real_buffer.record_render_states = False
 
@@ -493,6 +514,9 @@ class PEBBLE(SAC):
         self.logger.record("feedback/asked", self.feedback_asked)
         self.logger.record("feedback/labeled", self.feedback_labeled)
         self.logger.record("feedback/sessions", self.feedback_sessions)
+        teacher = self.resolve_teacher()
+        if isinstance(teacher, InteractiveTeacher):
+            teacher.show_progress(self.feedback_asked, self.max_feedback)
         if len(self.preferences) > 0:
             self.learn_reward()
         return True
@@ -532,7 +556,13 @@ class PEBBLE(SAC):
     def learn_reward(self) -> None:
         """Train the reward ensemble on every preference so far (Eqs. 1–2), then relabel the buffer with r̂."""
         loss, accuracy, epochs = self.reward_model.train_epochs(
-            self.preferences, self.reward_epochs, self.reward_batch_size, rng=self.preference_rng
+            self.preferences,
+            self.reward_epochs,
+            self.reward_batch_size,
+            # no early stop: no training accuracy exceeds 1
+            target_accuracy=1.0 if self.reward_early_stop is None else self.reward_early_stop,
+            rng=self.preference_rng,
+            temporal_crop=self.temporal_crop,
         )
         self.relabel()
         correlation = self.reward_correlation()
@@ -681,8 +711,10 @@ class PEBBLE(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         excluded = [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
-        if self._named_teacher is not None and isinstance(self._named_teacher[1], InteractiveTeacher):
-            excluded.append("_named_teacher")  # a person's teacher is made again (its page, its port) when loaded
+        if self._named_teacher is not None and not isinstance(self._named_teacher[1], ScriptedTeacher):
+            # made again from its name when loaded (a person's page and port, a client): only B-Pref's scripted
+            # teachers are saved, with their random state
+            excluded.append("_named_teacher")
         return excluded
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:

@@ -31,7 +31,7 @@ class GeneratorCallback(BaseCallback):
 
     def _on_training_start(self) -> None:
         self.first_step = self.model.num_timesteps + self.model.n_envs  # a learn() of one step retrains when due
-        self.last_step = int(self.locals["total_timesteps"])
+        self.last_step = int(self.locals.get("total_timesteps", 2**62))  # outside SB3's learn(): no end to wait for
 
     def _on_step(self) -> bool:
         model = self.model

@@ -12,6 +12,7 @@ from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
 from sb3_pride.pebble.pebble import PEBBLE
 from sb3_pride.pride.callbacks import GeneratorCallback
+from sb3_pride.pride.recipes import check_generator_kwargs, migrate_saved_settings
 
 
 class PRIDE(PEBBLE):
@@ -85,12 +86,7 @@ class PRIDE(PEBBLE):
         if synthetic_buffer_size is not None:
             check_positive_ints(synthetic_buffer_size=synthetic_buffer_size)
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
-        if generator_kwargs is not None and not isinstance(generator_kwargs, dict):
-            raise ValueError(f"generator_kwargs must be a dict of TransitionGenerator arguments, got {generator_kwargs!r}")
-        try:  # fail now, not at the first retrain
-            TransitionGenerator(1, 1, **{**(generator_kwargs or {}), "device": "cpu"})
-        except TypeError as error:
-            raise ValueError(f"generator_kwargs must be valid TransitionGenerator arguments: {error}") from None
+        check_generator_kwargs(generator_kwargs, pebble_kwargs)
         replay_buffer_kwargs = dict(pebble_kwargs.pop("replay_buffer_kwargs", None) or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
@@ -116,6 +112,7 @@ class PRIDE(PEBBLE):
             self._setup_model()
 
     def _setup_model(self) -> None:
+        self.generator_kwargs = {**migrate_saved_settings(self.__dict__), **self.generator_kwargs}  # a model saved by 0.1.0
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         options = dict(seed=self.seed, device=self.device)
@@ -231,6 +228,11 @@ class PRIDE(PEBBLE):
                 self.logger.record(f"diffusion/{key}", value)
         if report.kept_dynamics_error_ratio is not None:
             self.logger.record("diffusion/kept_dynamics_error_ratio", report.kept_dynamics_error_ratio)
+
+    def set_parameters(self, load_path_or_dict, exact_match: bool = True, device="auto") -> None:  # type: ignore[override]
+        if isinstance(load_path_or_dict, dict) and "diffusion" in load_path_or_dict:  # saved by version 0.1.0
+            load_path_or_dict = {("generator.diffusion" if k == "diffusion" else k): v for k, v in load_path_or_dict.items()}
+        super().set_parameters(load_path_or_dict, exact_match, device)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

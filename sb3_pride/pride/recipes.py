@@ -10,6 +10,7 @@ it (``SYNTHER_SIZES`` for theirs).
 import copy
 from typing import Any
 
+from sb3_pride.common.generator import TransitionGenerator
 from sb3_pride.common.utils import merge_kwargs
 
 #: the paper's PRIDE: synthetic data from the first reward model on at full u, in place of real rows in each
@@ -63,3 +64,54 @@ def expand_recipe(entry: dict[str, Any]) -> dict[str, Any]:
         return dict(entry)
     settings = dict(entry)
     return merge_kwargs(recipe(settings.pop("recipe")), settings)
+
+
+#: PRIDE settings of version 0.1.0 and their place in 0.2.0's ``generator_kwargs``
+RENAMED_SETTINGS: dict[str, str] = {
+    "diffusion_width": "width",
+    "diffusion_blocks": "n_blocks",
+    "diffusion_train_steps": "train_steps",
+    "diffusion_sample_steps": "sample_steps",
+    "diffusion_warm_start": "warm_start",
+    "diffusion_normalization": "normalization",
+    "diffusion_kwargs": "diffusion_kwargs",
+    "model_state_change": "model_state_change",
+    "generation": "generation",
+    "anchor_noise": "anchor_noise",
+    "diffusion_window": "window",
+    "synthetic_keep_quantile": "keep_quantile",
+    "synthetic_filter": "filter",
+    "fidelity_check": "fidelity_check",
+    "dynamics_kwargs": "dynamics_kwargs",
+}
+
+
+def check_generator_kwargs(generator_kwargs: Any, other_kwargs: dict[str, Any]) -> None:
+    """
+    Fail at construction, not at the first retrain: ``generator_kwargs`` must be ``TransitionGenerator`` arguments
+    other than the run's seed and device (PRIDE's), and no generator setting may come as a keyword of its own (as in
+    version 0.1.0: the error names its new place).
+    """
+    old = sorted(set(other_kwargs) & set(RENAMED_SETTINGS))
+    if old:
+        hints = ", ".join(f"{name} -> generator_kwargs={{{RENAMED_SETTINGS[name]!r}: ...}}" for name in old)
+        raise ValueError(f"PRIDE's generator settings are given in generator_kwargs: {hints}")
+    if generator_kwargs is None:
+        return
+    if not isinstance(generator_kwargs, dict) or {"seed", "device"} & set(generator_kwargs):
+        raise ValueError(
+            "generator_kwargs must be a dict of TransitionGenerator arguments (the run's seed and device are PRIDE's), "
+            f"got {generator_kwargs!r}"
+        )
+    try:
+        TransitionGenerator(1, 1, **{**generator_kwargs, "device": "cpu"})
+    except TypeError as error:
+        raise ValueError(f"generator_kwargs must be valid TransitionGenerator arguments: {error}") from None
+
+
+def migrate_saved_settings(saved: dict[str, Any]) -> dict[str, Any]:
+    """
+    The ``generator_kwargs`` of a model saved by version 0.1.0, from the flat settings it holds (removed from
+    ``saved``, a model's ``__dict__``); an empty dict for a model saved by this version.
+    """
+    return {new: saved.pop(old) for old, new in RENAMED_SETTINGS.items() if old in saved}
