@@ -1,0 +1,480 @@
+"""
+A reward-learning bench that needs no RL run: how well does PEBBLE's reward model r̂ learn from a given number of
+labels, under each reward-learning configuration?
+
+    # once (6 to 12 minutes on one core): PEBBLE on walker-walk (hyperparams/cpu/pebble.yml, oracle teacher, seed 0),
+    # its replay buffer up to 30k env steps (--checkpoint 10000 screens on its first 10k)
+    python benchmarks/reward_bench.py --record
+    # the screen: every configuration × seed (about 15 minutes per seed on one busy core; --configs picks some)
+    python benchmarks/reward_bench.py --screen --seeds 0 1 2 3 4
+
+``--record`` writes ``<data>/buffer.npz`` (float32 observations, actions and true rewards, uint8 episode ends, in
+the order the steps were taken; the buffer never wraps, so the buffer at an earlier checkpoint is the first rows of
+it: ``checkpoints`` says how many) and ``<data>/provenance.json`` (the code version and the library versions).
+
+``--screen`` trains, for each configuration and seed, fresh ``RewardEnsemble``s with the package's own classes and
+loss: uniform segment pairs of the training episodes (80% of the episodes; the other 20% are held out and never give a
+training pair), drawn and labelled by the teacher in feedback sessions of ``queries_per_session``, and
+``RewardEnsemble.train_epochs`` with the YAML's reward settings (3 members, 256 × 3, lr 3e-4, batch 128, up to 50
+epochs, 97% early stop). By default each budget (50, 100, 200, 400 labels) is trained in one go, a fresh model on the
+budget's first labels (the budgets share their pairs); ``--sessions`` trains as PEBBLE does, one model after each
+session on every label so far (closer to the algorithm, about 3× the compute). At each budget it reports, on the
+held-out episodes, the Pearson correlation of r̂ with the true reward over every transition, and the preference
+accuracy over fixed segment pairs (does the sign of R̂1 − R̂0 match that of the true returns R1 − R0). Every
+configuration sees the same split and pairs for a given seed. Results: ``<out>.json`` and ``<out>.md``, rewritten
+after every seed (``--markdown <out>.json`` rewrites the table from the JSON file).
+"""
+
+import argparse
+import inspect
+import json
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+os.environ.setdefault("MUJOCO_GL", "disable")
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from run import env_id, provenance, system_info, yaml_entry  # noqa: E402
+
+DATA = ROOT / "benchmarks" / "results" / "reward_bench_data"
+OUT = ROOT / "benchmarks" / "results" / "reward_bench"
+TASK = "walker-walk"
+
+#: reward-learning configurations: ``train_epochs`` keyword arguments (the label flip is the teacher's, not r̂'s)
+CONFIGS: dict[str, dict[str, Any]] = {
+    "plain": {},
+    "crop": {"temporal_crop": (35, 45)},
+    "no early stop": {"target_accuracy": 1.0},
+    "crop + no early stop": {"temporal_crop": (35, 45), "target_accuracy": 1.0},
+    "plain, flipped labels": {"flip_labels": True},
+}
+
+DECISION_RULE = (
+    "Written before the screen ran. Primary metric: mean held-out corr(r̂, r) over seeds. A configuration is a "
+    "**finalist** if (a) at 100 labels its mean corr exceeds plain's at 100 labels by more than the larger of the two "
+    "standard deviations, and (b) at 200 labels its mean corr is at least plain's at 400 labels minus 0.02. Among "
+    "finalists the one with the highest mean corr at 100 labels is **chosen**; it **reaches** plain at 400 if its mean "
+    "corr at 100 labels is at least plain's at 400 labels (otherwise the gap is reported). Held-out pair accuracy "
+    "must not be lower than plain's at the same budget by more than 0.02 (a sanity check, not a ranking). The "
+    "flipped-label row must read a negative corr and an accuracy below 0.5 at every budget, or the bench is broken."
+)
+
+
+# ----------------------------------------------------------------------------------------------------------- record
+def record(data: Path, checkpoints: list[int], seed: int, command: str) -> None:
+    """Run PEBBLE (the CPU YAML's walker-walk entry) and save its replay buffer once the last checkpoint is reached."""
+    import torch as th
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+
+    from sb3_pride import PEBBLE
+
+    th.set_num_threads(1)
+    _, kwargs = yaml_entry("cpu", "pebble", TASK)
+    env = make_vec_env(env_id(TASK), n_envs=1, seed=seed)
+    model = PEBBLE("MlpPolicy", env, seed=seed, verbose=1, **kwargs)
+    corr: dict[int, float] = {}
+
+    class Probe(BaseCallback):
+        def _on_step(self) -> bool:
+            if self.num_timesteps in checkpoints:
+                corr[self.num_timesteps] = model.reward_correlation() if len(model.preferences) else float("nan")
+                print(f"checkpoint {self.num_timesteps}: {model.feedback_labeled} labels so far", flush=True)
+            return True
+
+    start = time.time()
+    model.learn(max(checkpoints), callback=Probe())
+    seconds = time.time() - start
+    buffer = model.real_buffer
+    if buffer.full:
+        raise SystemExit("the replay buffer wrapped: record fewer steps or a larger buffer_size")
+    n = buffer.pos
+    data.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(
+        data / "buffer.npz",
+        observations=buffer.observations[:n, 0].astype(np.float32),
+        actions=buffer.actions[:n, 0].astype(np.float32),
+        true_rewards=buffer.true_rewards[:n, 0].astype(np.float32),
+        dones=(buffer.dones[:n, 0] > 0).astype(np.uint8),
+        checkpoints=np.array(checkpoints),
+    )
+    info = {
+        "command": command,
+        "task": env_id(TASK),
+        "seed": seed,
+        "kwargs": kwargs,
+        "checkpoints": checkpoints,
+        "pebble_reward_corr_at_checkpoints": corr,
+        "feedback_labeled": model.feedback_labeled,
+        "seconds": seconds,
+        "version": provenance(),
+        "system": system_info(),
+    }
+    (data / "provenance.json").write_text(json.dumps(info, indent=2, default=str))
+    print(f"saved {n} steps to {data} in {seconds:.0f} s")
+
+
+# ----------------------------------------------------------------------------------------------------------- screen
+def load_data(data: Path, checkpoint: int | None) -> tuple[dict[str, np.ndarray], int]:
+    """The recorded steps up to ``checkpoint`` (None: all of them), and the checkpoint."""
+    path = data / "buffer.npz"
+    if not path.exists():
+        raise SystemExit(f"no recorded data at {path}: run `python benchmarks/reward_bench.py --record` first")
+    with np.load(path) as file:
+        arrays = {key: file[key] for key in file.files}
+    n = int(checkpoint if checkpoint is not None else arrays["checkpoints"].max())
+    if n > len(arrays["dones"]):
+        raise SystemExit(f"--checkpoint {n}: only {len(arrays['dones'])} steps were recorded")
+    return {key: value[:n] for key, value in arrays.items() if key != "checkpoints"}, n
+
+
+def episode_bounds(dones: np.ndarray) -> list[tuple[int, int]]:
+    """``[start, end)`` of each complete episode (a step with ``done`` ends one)."""
+    ends = np.flatnonzero(dones) + 1
+    return list(zip(np.concatenate([[0], ends[:-1]]).tolist(), ends.tolist(), strict=True))
+
+
+def episodes_buffer(steps: dict[str, np.ndarray], episodes: list[tuple[int, int]]):
+    """A ``PreferenceReplayBuffer`` holding these episodes one after the other, each ended by ``done``."""
+    from gymnasium import spaces
+
+    from sb3_pride.common.buffers import PreferenceReplayBuffer
+
+    rows = np.concatenate([np.arange(start, end) for start, end in episodes])
+    obs, actions = steps["observations"][rows], steps["actions"][rows]
+    buffer = PreferenceReplayBuffer(
+        len(rows),
+        spaces.Box(-np.inf, np.inf, obs.shape[1:], np.float32),
+        spaces.Box(-1.0, 1.0, actions.shape[1:], np.float32),
+        device="cpu",
+    )
+    buffer.observations[:, 0] = obs
+    buffer.actions[:, 0] = actions
+    buffer.true_rewards[:, 0] = steps["true_rewards"][rows]
+    buffer.dones[:, 0] = 0
+    buffer.dones[np.cumsum([end - start for start, end in episodes]) - 1, 0] = 1
+    buffer.pos, buffer.full = 0, True
+    return buffer
+
+
+def split_episodes(
+    episodes: list[tuple[int, int]], held_out_fraction: float, seed: int
+) -> tuple[list[tuple[int, int]], list[tuple[int, int]]]:
+    """(training episodes, held-out episodes): a random ``held_out_fraction`` of them (at least one) held out."""
+    order = np.random.default_rng(seed).permutation(len(episodes))
+    n_held = max(1, round(held_out_fraction * len(episodes)))
+    if n_held >= len(episodes):
+        raise SystemExit(f"{len(episodes)} episodes: too few to hold {n_held} out")
+    return [episodes[i] for i in sorted(order[n_held:])], [episodes[i] for i in sorted(order[:n_held])]
+
+
+def pair_accuracy(model, inputs: np.ndarray, true_returns: np.ndarray) -> float:
+    """How often the ensemble's mean segment returns order a pair as its true returns do (ties left out)."""
+    predicted = model.member_segment_returns(inputs).mean(dim=0).numpy()
+    strict = true_returns[:, 1] != true_returns[:, 0]
+    agree = (predicted[:, 1] > predicted[:, 0]) == (true_returns[:, 1] > true_returns[:, 0])
+    return float(agree[strict].mean())
+
+
+def screen_one(
+    steps: dict[str, np.ndarray],
+    config: dict[str, Any],
+    seed: int,
+    budgets: list[int],
+    reward_kwargs: dict[str, Any],
+    sessions: bool = False,
+    held_out_fraction: float = 0.2,
+    n_test_pairs: int = 2000,
+) -> dict[int, dict[str, float]]:
+    """
+    One seed of one configuration: uniform pairs of the training episodes, drawn and labelled in feedback sessions of
+    ``queries_per_session``; r̂ trained on the first ``budget`` labels in one go (a fresh model per budget), or with
+    ``sessions`` as PEBBLE does (one model, trained after each session); the held-out metrics at each budget.
+    """
+    import torch as th
+
+    from sb3_pride.common.queries import sample_segment_pairs
+    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
+    from sb3_pride.common.teachers import make_teacher
+
+    config = dict(config)
+    flip = config.pop("flip_labels", False)
+    k, per_session = reward_kwargs["segment_length"], reward_kwargs["queries_per_session"]
+    # the split and the labelled pairs depend on the seed only: every configuration sees the same ones
+    train, held = split_episodes(episode_bounds(steps["dones"]), held_out_fraction, seed)
+    train_buffer, held_buffer = episodes_buffer(steps, train), episodes_buffer(steps, held)
+    test = sample_segment_pairs(held_buffer, n_test_pairs, k, len(held), np.random.default_rng([seed, 1]))
+    assert test is not None
+    test_inputs, test_returns = test.inputs, test.true_rewards.sum(axis=-1)
+    held_rows = np.concatenate([np.arange(start, end) for start, end in held])
+    held_obs, held_actions = steps["observations"][held_rows], steps["actions"][held_rows]
+    held_rewards = steps["true_rewards"][held_rows]
+
+    teacher = make_teacher("oracle", seed=seed)
+    pair_rng, train_rng = np.random.default_rng([seed, 2]), np.random.default_rng([seed, 3])
+    # the labelled pairs, in feedback sessions of queries_per_session: a budget's pairs are the first ones
+    chunks = []
+    for _ in range(-(-max(budgets) // per_session)):
+        pairs = sample_segment_pairs(train_buffer, per_session, k, len(train), pair_rng)
+        assert pairs is not None
+        labels = teacher(pairs)
+        chunks.append((pairs.inputs, 1.0 - labels if flip else labels))
+
+    def new_model() -> RewardEnsemble:
+        th.manual_seed(seed)
+        return RewardEnsemble(
+            held_obs.shape[1],
+            held_actions.shape[1],
+            n_members=reward_kwargs["ensemble_size"],
+            net_arch=tuple(reward_kwargs["reward_net_arch"]),
+            learning_rate=reward_kwargs["reward_learning_rate"],
+            device="cpu",
+        )
+
+    def train(model: RewardEnsemble, dataset: PreferenceDataset) -> tuple[float, int]:
+        _, accuracy, epochs = model.train_epochs(
+            dataset, reward_kwargs["reward_epochs"], reward_kwargs["reward_batch_size"], rng=train_rng, **config
+        )
+        return accuracy, epochs
+
+    def evaluate(model: RewardEnsemble, accuracy: float, epochs: int, seconds: float) -> dict[str, float]:
+        predicted = model.predict(held_obs, held_actions)
+        return {
+            "corr": float(np.corrcoef(predicted, held_rewards)[0, 1]),
+            "pair_accuracy": pair_accuracy(model, test_inputs, test_returns),
+            "train_accuracy": float(accuracy),
+            "epochs": epochs,
+            "seconds": seconds,
+        }
+
+    results: dict[int, dict[str, float]] = {}
+    input_dim = held_obs.shape[1] + held_actions.shape[1]
+    if sessions:
+        # as PEBBLE: one model, trained on every label so far after each session
+        model, dataset = new_model(), PreferenceDataset(k, input_dim)
+        epochs_run, start = 0, time.time()
+        for inputs, labels in chunks:
+            dataset.add(inputs, labels)
+            accuracy, epochs = train(model, dataset)
+            epochs_run += epochs
+            if len(dataset) in budgets:
+                results[len(dataset)] = evaluate(model, accuracy, epochs_run, time.time() - start)
+    else:
+        # each budget in one go: a fresh model trained on the budget's first labels
+        inputs, labels = np.concatenate([c[0] for c in chunks]), np.concatenate([c[1] for c in chunks])
+        for budget in budgets:
+            start = time.time()
+            model, dataset = new_model(), PreferenceDataset(k, input_dim)
+            dataset.add(inputs[:budget], labels[:budget])
+            accuracy, epochs = train(model, dataset)
+            results[budget] = evaluate(model, accuracy, epochs, time.time() - start)
+    return results
+
+
+def summarize(runs: dict[str, dict[int, dict[int, dict[str, float]]]], budgets: list[int]) -> dict[str, Any]:
+    """Mean and std over seeds of each metric, per configuration and budget."""
+    table: dict[str, Any] = {}
+    for name, by_seed in runs.items():
+        table[name] = {}
+        for budget in budgets:
+            cell = {}
+            for metric in ("corr", "pair_accuracy", "epochs", "seconds"):
+                values = np.array([by_seed[seed][budget][metric] for seed in by_seed])
+                cell[metric] = {"mean": float(values.mean()), "std": float(values.std())}
+            table[name][str(budget)] = cell
+    return table
+
+
+def decide(table: dict[str, Any], budgets: list[int]) -> dict[str, Any]:
+    """Apply ``DECISION_RULE`` to the summary."""
+
+    def corr(name: str, budget: int) -> tuple[float, float]:
+        cell = table[name][str(budget)]["corr"]
+        return cell["mean"], cell["std"]
+
+    if not {100, 200, 400} <= set(budgets) or "plain" not in table:
+        return {"note": "the rule needs plain at 100, 200 and 400 labels"}
+    plain100, plain100_std = corr("plain", 100)
+    plain400, _ = corr("plain", 400)
+    finalists = []
+    for name in table:
+        if name == "plain" or "flipped" in name:
+            continue
+        mean100, std100 = corr(name, 100)
+        mean200, _ = corr(name, 200)
+        if mean100 - plain100 > max(std100, plain100_std) and mean200 >= plain400 - 0.02:
+            finalists.append(name)
+    chosen = max(finalists, key=lambda name: corr(name, 100)[0]) if finalists else None
+    verdict: dict[str, Any] = {"finalists": finalists, "chosen": chosen, "plain_corr_at_400": plain400}
+    if chosen is not None:
+        verdict["chosen_corr_at_100"] = corr(chosen, 100)[0]
+        verdict["reaches_plain_at_400_with_100_labels"] = corr(chosen, 100)[0] >= plain400
+        verdict["gap_at_100_to_plain_at_400"] = plain400 - corr(chosen, 100)[0]
+    for name in table:
+        verdict.setdefault("gap_at_100_to_plain_at_400_by_config", {})[name] = plain400 - corr(name, 100)[0]
+    flipped = [name for name in table if "flipped" in name]
+    verdict["flipped_reads_bad"] = all(
+        table[name][str(b)]["corr"]["mean"] < 0 and table[name][str(b)]["pair_accuracy"]["mean"] < 0.5
+        for name in flipped
+        for b in budgets
+    )
+    return verdict
+
+
+def markdown(result: dict[str, Any]) -> str:
+    budgets = result["budgets"]
+    lines = [
+        "# Reward-learning bench: walker-walk",
+        "",
+        f"Made by `{result['command']}` in {result['seconds']:.0f} s "
+        f"on one CPU thread ({result['system'].get('CPU')}); sb3_pride {result['version'].get('sb3_pride')}, "
+        f"uncommitted changes: {result['version'].get('dirty')} (the git revision of the code and of the data's "
+        f"recording: `version` and `data` in the JSON file). Data: the first {result['data']['steps']} steps of PEBBLE "
+        f"seed {result['data'].get('seed')}, recorded by `{result['data'].get('command')}`.",
+        "",
+        f"Seeds {result['seeds']}; uniform {result['reward_kwargs']['segment_length']}-step pairs of the training "
+        f"episodes (80%), drawn and labelled in sessions of {result['reward_kwargs']['queries_per_session']}; "
+        + (
+            "one model trained after each session on every label so far, as PEBBLE does"
+            if result["sessions"]
+            else "each budget trained in one go (a fresh model on the budget's first labels)"
+        )
+        + " with `RewardEnsemble.train_epochs` (3 members, 256×3, lr 3e-4, batch 128, ≤ 50 epochs, 97% early stop "
+        "unless said otherwise); each seed draws its own held-out episodes (20%) and pairs, "
+        "the same for every configuration. Held-out corr(r̂, r) over every held-out transition; pair accuracy over "
+        f"{result['n_test_pairs']} held-out segment pairs; mean ± std over seeds.",
+        "",
+        *([f"**Note:** {result['note']}", ""] if result.get("note") else []),
+        "## Decision rule",
+        "",
+        DECISION_RULE,
+        "",
+        "## corr(r̂, r) on held-out transitions",
+        "",
+        "| configuration | " + " | ".join(f"{b} labels" for b in budgets) + " |",
+        "|---|" + "---|" * len(budgets),
+    ]
+    table = result["table"]
+
+    def row(metric: str, digits: int = 2) -> list[str]:
+        out = []
+        for name, cells in table.items():
+            values = [
+                f"{cells[str(b)][metric]['mean']:.{digits}f} ± {cells[str(b)][metric]['std']:.{digits}f}" for b in budgets
+            ]
+            out.append(f"| {name} | " + " | ".join(values) + " |")
+        return out
+
+    lines += row("corr")
+    lines += ["", "## Preference accuracy on held-out segment pairs", ""]
+    lines += ["| configuration | " + " | ".join(f"{b} labels" for b in budgets) + " |", "|---|" + "---|" * len(budgets)]
+    lines += row("pair_accuracy")
+    lines += ["", "## Epochs of training (all sessions so far with --sessions): the cost, mean ± std", ""]
+    lines += ["| configuration | " + " | ".join(f"{b} labels" for b in budgets) + " |", "|---|" + "---|" * len(budgets)]
+    lines += row("epochs", 0)
+    lines += ["", "## Verdict", "", "```json", json.dumps(result["verdict"], indent=2), "```", ""]
+    lines += ["Configurations: " + "; ".join(f"{name}: `{config}`" for name, config in result["configs"].items()), ""]
+    return "\n".join(lines)
+
+
+def screen(args: argparse.Namespace) -> dict[str, Any]:
+    import torch as th
+
+    th.set_num_threads(1)
+    steps, n = load_data(args.data, args.checkpoint)
+    provenance_file = args.data / "provenance.json"
+    recorded = json.loads(provenance_file.read_text()) if provenance_file.exists() else {}
+    _, kwargs = yaml_entry("cpu", "pebble", TASK)
+    from sb3_pride import PEBBLE
+
+    defaults = {p.name: p.default for p in inspect.signature(PEBBLE.__init__).parameters.values()}
+    keys = ("segment_length", "queries_per_session", "ensemble_size", "reward_net_arch", "reward_learning_rate",
+            "reward_batch_size", "reward_epochs")  # fmt: skip
+    reward_kwargs = {key: kwargs.get(key, defaults[key]) for key in keys}
+    budgets = sorted(args.budgets)
+    if any(b % reward_kwargs["queries_per_session"] for b in budgets):
+        raise SystemExit(f"--budgets must be multiples of queries_per_session ({reward_kwargs['queries_per_session']})")
+    configs = {name: CONFIGS[name] for name in args.configs}
+    runs: dict[str, dict[int, dict[int, dict[str, float]]]] = {name: {} for name in configs}
+    start = time.time()
+    result: dict[str, Any] = {}
+    for seed in args.seeds:
+        for name, config in configs.items():
+            runs[name][seed] = screen_one(steps, config, seed, budgets, reward_kwargs, sessions=args.sessions)
+            print(f"seed {seed} {name}: " + ", ".join(
+                f"{b}: corr {runs[name][seed][b]['corr']:.3f} acc {runs[name][seed][b]['pair_accuracy']:.3f}"
+                f" ({runs[name][seed][b]['seconds']:.0f} s)" for b in budgets), flush=True)  # fmt: skip
+        # written after every seed: a screen stopped early keeps the seeds it finished
+        table = summarize(runs, budgets)
+        result = {
+            "command": args.command,
+            "seconds": time.time() - start,
+            "budgets": budgets,
+            "seeds": [s for s in args.seeds if s in runs[next(iter(runs))]],
+            "sessions": args.sessions,
+            "n_test_pairs": 2000,
+            "configs": {
+                name: {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()} for name, c in configs.items()
+            },
+            "reward_kwargs": reward_kwargs,
+            "decision_rule": DECISION_RULE,
+            "table": table,
+            "verdict": decide(table, budgets),
+            "runs": runs,
+            "data": {
+                "steps": n,
+                "seed": recorded.get("seed"),
+                "command": recorded.get("command"),
+                "commit": recorded.get("version", {}).get("commit"),
+            },
+            "version": provenance(),
+            "system": system_info(),
+        }
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.with_suffix(".json").write_text(json.dumps(result, indent=2, default=str))
+        out.with_suffix(".md").write_text(markdown(result))
+    print(markdown(result))
+    return result
+
+
+def make_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    mode = parser.add_mutually_exclusive_group(required=True)
+    mode.add_argument("--record", action="store_true", help="run PEBBLE once and save its replay buffer")
+    mode.add_argument("--screen", action="store_true", help="train reward models on the recorded data")
+    mode.add_argument("--markdown", type=Path, default=None, help="rewrite the markdown table of a screen's JSON file")
+    parser.add_argument("--data", type=Path, default=DATA, help="the recorded data's folder")
+    parser.add_argument("--checkpoints", type=int, nargs="+", default=[10_000, 20_000, 30_000])
+    parser.add_argument("--record-seed", type=int, default=0)
+    parser.add_argument("--checkpoint", type=int, default=None, help="screen on the first N steps (default: all)")
+    parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2, 3, 4])
+    parser.add_argument("--budgets", type=int, nargs="+", default=[50, 100, 200, 400])
+    parser.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
+    parser.add_argument("--sessions", action="store_true", help="train as PEBBLE does: one model, after each session (slower)")
+    parser.add_argument("--out", type=Path, default=OUT, help="the result files' path, without suffix")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> None:
+    args = make_parser().parse_args(argv)
+    if args.markdown is not None:
+        result = json.loads(args.markdown.read_text())
+        args.markdown.with_suffix(".md").write_text(markdown(result))
+        return
+    args.command = " ".join(["python", "benchmarks/reward_bench.py", *(sys.argv[1:] if argv is None else argv)])
+    if args.record:
+        record(args.data, sorted(args.checkpoints), args.record_seed, args.command)
+    else:
+        screen(args)
+
+
+if __name__ == "__main__":
+    main()
