@@ -9,6 +9,8 @@ from pathlib import Path
 
 import pytest
 
+from sb3_pride.pride.recipes import RENAMED_SETTINGS
+
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -252,14 +254,7 @@ def test_the_committed_grid_files_have_all_their_runs_done(grid, capsys):
 
 
 #: the generator's arguments before they moved into generator_kwargs: committed runs record these names
-GENERATOR_OLD_NAMES = {
-    "width": "diffusion_width", "n_blocks": "diffusion_blocks", "train_steps": "diffusion_train_steps",
-    "sample_steps": "diffusion_sample_steps", "warm_start": "diffusion_warm_start",
-    "normalization": "diffusion_normalization", "diffusion_kwargs": "diffusion_kwargs",
-    "model_state_change": "model_state_change", "generation": "generation", "anchor_noise": "anchor_noise",
-    "window": "diffusion_window", "keep_quantile": "synthetic_keep_quantile", "filter": "synthetic_filter",
-    "fidelity_check": "fidelity_check", "dynamics_kwargs": "dynamics_kwargs",
-}  # fmt: skip
+GENERATOR_OLD_NAMES = {new: old for old, new in RENAMED_SETTINGS.items()}
 
 
 def flat_kwargs(kwargs: dict) -> dict:
