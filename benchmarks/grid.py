@@ -96,7 +96,10 @@ def configuration(label: str, variants: dict[str, dict[str, Any]], where: str) -
     """``{"algo", "tag", "overrides", "variant"}`` of a configuration label: a variant, or a plain algorithm."""
     if label in variants:
         entry = variants[label]
-        return {"algo": entry["algo"], "tag": entry["tag"], "overrides": entry["overrides"], "variant": label}
+        config = {"algo": entry["algo"], "tag": entry["tag"], "overrides": entry["overrides"], "variant": label}
+        if "seconds_per_answer" in entry:
+            config["seconds_per_answer"] = entry["seconds_per_answer"]
+        return config
     if label in run.ALGOS:
         return {"algo": label, "tag": "", "overrides": {}, "variant": None}
     raise GridError(
@@ -129,6 +132,8 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
                             eval_freq=grid.get("eval_freq", 5000), eval_episodes=grid.get("eval_episodes", 5),
                             timesteps=grid.get("timesteps", 0), tag=config["tag"], overrides=config["overrides"],
                             configuration=label, variant=config["variant"])  # fmt: skip
+                if "seconds_per_answer" in config:
+                    spec["seconds_per_answer"] = config["seconds_per_answer"]
                 if run.run_name(spec) not in seen:
                     seen.add(run.run_name(spec))
                     specs.append(spec)

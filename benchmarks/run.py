@@ -88,7 +88,8 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
     """
     The named variants of a tier, ``hyperparams/<tier>/variants.yml`` (``hyperparams/variants.yml`` for ``paper``):
     ``{label: {"algo", "name", "description", "overrides", "tag"}}``, the name and tag defaulting to the label ({}
-    without the file).
+    without the file), and ``seconds_per_answer`` where the variant's teacher answers at a person's pace
+    (``PacedTeacher``).
     """
     import yaml
 
@@ -99,7 +100,7 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
         return {}
     variants = yaml.safe_load(path.read_text()) or {}
     for label, entry in variants.items():
-        unknown = sorted(set(entry) - {"algo", "name", "description", "overrides", "tag"})
+        unknown = sorted(set(entry) - {"algo", "name", "description", "overrides", "tag", "seconds_per_answer"})
         if unknown or entry.get("algo") not in ALGOS:
             problem = f"unknown keys {unknown}" if unknown else f"algo must be one of {ALGOS}, got {entry.get('algo')!r}"
             raise SystemExit(f"{path}: variant {label!r}: {problem}")
@@ -261,7 +262,13 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     algo = algorithm_class(spec["algo"])
     env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
     eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
-    model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **kwargs)
+    model_kwargs = dict(kwargs)
+    if spec.get("seconds_per_answer"):  # the teacher answers at a person's pace
+        from sb3_pride.common.teachers import PacedTeacher, make_teacher
+
+        teacher = make_teacher(kwargs["teacher"], seed=spec["seed"])
+        model_kwargs["teacher"] = PacedTeacher(teacher, spec["seconds_per_answer"])
+    model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **model_kwargs)
     folder.mkdir(parents=True, exist_ok=True)
     # SB3's logger to progress.csv: reward-model accuracy and true-reward correlation, diffusion fidelity, losses
     model.set_logger(configure(str(folder), ["csv"]))
@@ -287,6 +294,8 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     result = {"seconds": seconds, "final_return": float(returns[-1]), "best_return": float(returns.max()),
               "final_success": None if successes is None else float(successes[-1]),
               "feedback_asked": getattr(model, "feedback_asked", None), "feedback_labeled": getattr(model, "feedback_labeled", None)}  # fmt: skip
+    if getattr(model, "asynchronous_feedback", False):
+        result["steps_awaiting_feedback"] = model.steps_awaiting_feedback
     (folder / "result.json").write_text(json.dumps(result, indent=2))
 
 

@@ -26,22 +26,68 @@ def query_id(inputs: np.ndarray) -> str:
 
 @dataclass
 class JournalEntry:
-    """One answered query: the feedback session (1-based) it was asked in, its inputs and μ (NaN: skipped)."""
+    """
+    One answered query: the feedback session (1-based) it was asked in, its inputs and μ (NaN: skipped), and, when
+    the teacher says so, who answered (an annotator's name) and when (Unix time).
+    """
 
     session: int
     inputs: np.ndarray
     label: float
+    annotator: str | None = None
+    time: float | None = None
 
     @property
     def id(self) -> str:
         return query_id(self.inputs)
 
 
+def undone_index(
+    entries: list[JournalEntry], session: int, entry_id: str | None = None, annotator: str | None = None
+) -> int | None:
+    """
+    The index of the entry an undo of ``session`` takes back: the session's latest answer to ``entry_id`` by
+    ``annotator`` where they are given, else the last entry if it is of ``session``; None when there is none.
+    """
+    if entry_id is None and annotator is None:
+        return len(entries) - 1 if entries and entries[-1].session == session else None
+    for index in range(len(entries) - 1, -1, -1):
+        entry = entries[index]
+        if (
+            entry.session == session
+            and (entry_id is None or entry.id == entry_id)
+            and (annotator is None or entry.annotator == annotator)
+        ):
+            return index
+    return None
+
+
+def merge_answers(entries: list[JournalEntry]) -> list[JournalEntry]:
+    """
+    One entry per query, in the order queries were first answered: several annotators' answers to one query become
+    their mean μ over those that are not skips (NaN when all are).
+    """
+    by_id: dict[str, list[JournalEntry]] = {}
+    for entry in entries:
+        by_id.setdefault(entry.id, []).append(entry)
+    merged = []
+    for answers in by_id.values():
+        if len(answers) == 1:
+            merged.append(answers[0])
+            continue
+        labels = np.array([answer.label for answer in answers], dtype=np.float64)
+        label = float(np.mean(labels[~np.isnan(labels)])) if (~np.isnan(labels)).any() else float("nan")
+        merged.append(JournalEntry(answers[0].session, answers[0].inputs, label))
+    return merged
+
+
 class PreferenceJournal:
     """
     An append-only JSON-lines file of the teacher's answers, one line per query:
-    ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}``, and one line
-    ``{"session": n, "undo": true}`` for each answer taken back (a person's undo), which removes the session's last.
+    ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}`` (with
+    ``"annotator"`` and ``"time"`` when the teacher gives them), and one line ``{"session": n, "undo": true}`` for each
+    answer taken back (a person's undo), which removes the session's last answer, or the session's last answer to
+    query ``"id"`` (by ``"annotator"``) when the line names them.
 
     :param path: the file (created with its folder on the first answer)
     """
@@ -65,13 +111,16 @@ class PreferenceJournal:
                     break
                 raise ValueError(f"preference_journal {self.path}: line {number} is not JSON") from None
             if record.get("undo"):
-                if not entries or entries[-1].session != record["session"]:
+                undone = undone_index(entries, record["session"], record.get("id"), record.get("annotator"))
+                if undone is None:
                     raise ValueError(f"preference_journal {self.path}: line {number} undoes no answer of its session")
-                entries.pop()
+                del entries[undone]
                 continue
             inputs = np.frombuffer(base64.b64decode(record["inputs"]), dtype=np.float32).reshape(record["shape"])
             label = float("nan") if record["label"] is None else float(record["label"])
-            entries.append(JournalEntry(int(record["session"]), inputs.copy(), label))
+            entries.append(
+                JournalEntry(int(record["session"]), inputs.copy(), label, record.get("annotator"), record.get("time"))
+            )
         return entries
 
     def _cut_torn_line(self) -> None:
@@ -95,12 +144,22 @@ class PreferenceJournal:
                 "label": None if np.isnan(entry.label) else float(entry.label),
                 "shape": list(inputs.shape),
                 "inputs": base64.b64encode(inputs.tobytes()).decode("ascii"),
+                **({} if entry.annotator is None else {"annotator": entry.annotator}),
+                **({} if entry.time is None else {"time": entry.time}),
             })  # fmt: skip
         self._write(records)
 
-    def append_undo(self, session: int) -> None:
-        """Record that the last answer of ``session`` was taken back (flushed to disk before returning)."""
-        self._write([{"session": session, "undo": True}])
+    def append_undo(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
+        """
+        Record that an answer of ``session`` was taken back (flushed to disk before returning): its latest answer to
+        query ``entry_id`` by ``annotator`` where they are given, else its last answer.
+        """
+        record: dict = {"session": session, "undo": True}
+        if entry_id is not None:
+            record["id"] = entry_id
+        if annotator is not None:
+            record["annotator"] = annotator
+        self._write([record])
 
     def _write(self, records: list[dict]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)

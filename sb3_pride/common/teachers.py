@@ -4,8 +4,9 @@ the segments (a person), B-Pref's scripted teachers, and the registry that resol
 """
 
 import functools
+import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from abc import ABC, abstractmethod
 from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
@@ -42,14 +43,17 @@ class FeedbackContext:
     :param asked_before: queries asked in the earlier sessions
     :param budget: Q, the run's total query budget (``max_feedback``)
     :param record: journals answers the moment they are given (flushed to disk before it returns)
-    :param retract: journals that the last answer of a session (its number) was taken back
+    :param retract: ``retract(session, entry_id=None, annotator=None)`` journals that an answer of a session was
+        taken back: its latest answer to query ``entry_id`` (``JournalEntry.id``) by ``annotator``, or its last answer
+    :param log: ``log(key, value)`` records a number in the model's logger (e.g. an annotator's agreement)
     """
 
     session: int
     asked_before: int
     budget: int
     record: Callable[[list[JournalEntry]], None]
-    retract: Callable[[int], None]
+    retract: Callable[..., None]
+    log: Callable[[str, float], None] = field(default=lambda key, value: None)
 
 
 class InteractiveTeacher(ABC):
@@ -161,6 +165,33 @@ class ScriptedTeacher:
         labels[flips] = 1.0 - labels[flips]
         labels[equal] = 0.5
         labels[skipped] = np.nan
+        return labels
+
+
+class PacedTeacher:
+    """
+    A teacher that takes ``seconds_per_answer`` per query, then answers as ``teacher`` does: a person's pace,
+    simulated, to measure what waiting for answers costs (``PEBBLE(asynchronous_feedback=...)``).
+
+    :param teacher: the teacher that gives the answers (a ``Teacher``, e.g. ``ScriptedTeacher.from_preset("oracle")``)
+    :param seconds_per_answer: the time each answer takes
+    """
+
+    def __init__(self, teacher: Teacher, seconds_per_answer: float):
+        if not callable(teacher):
+            raise ValueError(f"teacher must be a Teacher (a callable), got {type(teacher).__name__}")
+        if not (isinstance(seconds_per_answer, (int, float)) and 0 <= seconds_per_answer < float("inf")):
+            raise ValueError(f"seconds_per_answer must be a finite number >= 0, got {seconds_per_answer!r}")
+        self.teacher = teacher
+        self.seconds_per_answer = float(seconds_per_answer)
+        #: (number of queries, seconds spent) of each call
+        self.calls: list[tuple[int, float]] = []
+
+    def __call__(self, pairs: SegmentPairs) -> np.ndarray:
+        start = time.monotonic()
+        time.sleep(self.seconds_per_answer * len(pairs))
+        labels = self.teacher(pairs)
+        self.calls.append((len(pairs), time.monotonic() - start))
         return labels
 
 

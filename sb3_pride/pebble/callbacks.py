@@ -30,23 +30,38 @@ class UnsupervisedPretrainingCallback(BaseCallback):
 class FeedbackCallback(BaseCallback):
     """
     Feedback sessions (Algorithm 1, lines 6–21): the first when pre-training ends, then every ``feedback_interval``
-    steps while fewer than ``max_feedback`` queries were asked, each by ``PEBBLE.feedback_session()`` (ask, label,
-    learn r̂, relabel). The first one ends pre-training (``PEBBLE.end_pretraining()``: critic reset and
+    steps while fewer than ``max_feedback`` queries were asked. Each is published (``PEBBLE.publish_queries()``) and
+    its answers taken in (``PEBBLE.take_answers()``: label, learn r̂, relabel) at once, or, with
+    ``asynchronous_feedback``, at the first step after the teacher has answered, training going on meanwhile; the next
+    session is not published before. The first one ends pre-training (``PEBBLE.end_pretraining()``: critic reset and
     ``critic_reset_updates`` steps on r̂). When no segment fits in the stored episodes yet, the session is tried
-    again a segment later.
+    again a segment later. A session still open when ``learn()`` ends is waited for.
     """
 
     model: "PEBBLE"
 
     def _on_step(self) -> bool:
         model = self.model
+        if model.feedback_open:
+            if model.answers_ready:
+                self._take_answers()
+            return True
         if model.feedback_asked >= model.max_feedback or model.num_timesteps < model.next_feedback_step:
             return True
-        first = model.in_pretraining
-        if not model.feedback_session():
+        if not model.publish_queries():
             model.next_feedback_step = model.num_timesteps + model.segment_length
             return True
         model.next_feedback_step = model.num_timesteps + model.feedback_interval
-        if first:
-            model.end_pretraining()
+        if not model.asynchronous_feedback:
+            self._take_answers()
         return True
+
+    def _on_training_end(self) -> None:
+        if self.model.feedback_open:  # a teacher's answers are never dropped
+            self._take_answers()
+
+    def _take_answers(self) -> None:
+        first = self.model.in_pretraining
+        self.model.take_answers()
+        if first:
+            self.model.end_pretraining()

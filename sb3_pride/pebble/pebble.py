@@ -1,6 +1,10 @@
 import os
+import time
 import warnings
 from collections.abc import Iterable
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -19,13 +23,30 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.common.entropy import StateEntropyReward
-from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, query_id
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, merge_answers, query_id, undone_index
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows, sample_segment_pairs, select_queries
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, check_temporal_crop
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
 from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
+
+
+@dataclass
+class PendingFeedback:
+    """
+    A published feedback session: the answers the journal already had (``inputs``/``labels``), the teacher's answers
+    to the new queries (``answers``: a finished future in blocking feedback) and when it was published.
+    """
+
+    session: int
+    inputs: np.ndarray
+    labels: np.ndarray
+    n_journal_entries: int
+    new_inputs: np.ndarray
+    answers: "Future[np.ndarray]"
+    published_step: int
+    published_time: float
 
 
 def _belongs_to(module: th.nn.Module, owner: th.nn.Module | None) -> bool:
@@ -88,6 +109,13 @@ class PEBBLE(SAC):
         that holds answers it does not have (a run killed after its last checkpoint) takes them back in the
         sessions they were given in, asking the teacher only for the rest: no answer is lost, none asked twice.
         None: no journal
+    :param asynchronous_feedback: False: training waits while the teacher answers a feedback session (PEBBLE).
+        True: a session's queries are published, its teacher answers them in a thread of its own (a person in a
+        browser, a slow labeler), and training goes on meanwhile with the reward model it has: the answers are taken
+        in (preferences added, r̂ retrained, buffer relabeled) at the first step after the last of them is in, and the
+        next session is published only then, at the earliest. Pre-training goes on until the first session's answers
+        are in. ``learn()`` waits for a session still open when it ends. The steps made on the older reward are
+        logged (``feedback/steps_awaiting``)
     """
 
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
@@ -146,6 +174,7 @@ class PEBBLE(SAC):
         temporal_crop: tuple[int, int] | None = None,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
+        asynchronous_feedback: bool = False,
         _init_setup_model: bool = True,
     ):
         check_positive_ints(
@@ -165,6 +194,8 @@ class PEBBLE(SAC):
             # SB3's: -1 as many updates as env steps collected, 0 none (a user's own loop calls train())
             raise ValueError(f"gradient_steps must be an integer, got {gradient_steps!r}")
         check_choice("query_selection", query_selection, QUERY_SELECTIONS)
+        if not isinstance(asynchronous_feedback, (bool, np.bool_)):
+            raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         temporal_crop = check_temporal_crop(temporal_crop, segment_length)
         if reward_early_stop is not None:
@@ -240,6 +271,13 @@ class PEBBLE(SAC):
         self.temporal_crop = temporal_crop
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
+        self.asynchronous_feedback = bool(asynchronous_feedback)
+        #: the published feedback session whose answers are awaited (asynchronous feedback; never saved)
+        self._pending_feedback: PendingFeedback | None = None
+        self._teacher_thread: ThreadPoolExecutor | None = None
+        self._teacher_records: deque[tuple[str, float]] = deque()  # what the teacher asked to log (thread-safe appends)
+        #: env steps the agent made while a published session's answers were awaited, over the run
+        self.steps_awaiting_feedback = 0
         # learning state, saved with the model
         self.feedback_asked = 0
         self.feedback_labeled = 0
@@ -464,6 +502,7 @@ class PEBBLE(SAC):
                 budget=self.max_feedback,
                 record=self.record_answers,
                 retract=self.retract_answer,
+                log=self._teacher_records.append,  # from the teacher's threads: logged by the model's own
             )
             answer = teacher.ask(pairs, context)
         else:
@@ -485,26 +524,100 @@ class PEBBLE(SAC):
     # a feedback session (Algorithm 1, lines 6–21) ------------------------------------------------------------------
     def feedback_session(self) -> bool:
         """
-        Ask, label, learn r̂, relabel: ``min(queries_per_session, max_feedback - asked)`` queries. Answers of this
-        session already in the preference journal (given before a crash) are taken from it; the teacher is asked only
-        for the rest, never for a query it answered.
+        Ask, label, learn r̂, relabel, waiting for the teacher: ``publish_queries(asynchronous=False)``, then
+        ``take_answers()``.
 
         :return: False when no segment fits in the stored episodes yet (nothing was asked)
         """
+        if not self.publish_queries(asynchronous=False):
+            return False
+        self.take_answers()
+        return True
+
+    @property
+    def feedback_open(self) -> bool:
+        """Whether a published feedback session's answers are still to be taken in (``take_answers()``)."""
+        return self._pending_feedback is not None
+
+    @property
+    def answers_ready(self) -> bool:
+        """Whether the teacher has answered every query of the open feedback session (``take_answers()`` won't wait)."""
+        return self._pending_feedback is not None and self._pending_feedback.answers.done()
+
+    def publish_queries(self, asynchronous: bool | None = None) -> bool:
+        """
+        Open a feedback session: choose its ``min(queries_per_session, max_feedback - asked)`` queries and give them to
+        the teacher. Answers of this session already in the preference journal (given before a crash) are taken from
+        it; the teacher is asked only for the rest, never for a query it answered.
+
+        :param asynchronous: True: the teacher answers in a thread of its own and this returns at once; False: it
+            returns once the teacher has answered; None: ``asynchronous_feedback``
+        :return: False when no segment fits in the stored episodes yet (nothing was asked)
+        """
+        if self._pending_feedback is not None:
+            raise RuntimeError(
+                f"feedback session {self._pending_feedback.session} is still open: take_answers() before publishing more"
+            )
+        asynchronous = self.asynchronous_feedback if asynchronous is None else asynchronous
         session = self.feedback_sessions + 1
         n_queries = min(self.queries_per_session, self.max_feedback - self.feedback_asked)
-        journaled = self.journaled_answers(session)[:n_queries]
-        inputs, labels = self.ask_new_queries(n_queries - len(journaled))
-        if inputs is None:
+        # several annotators' answers to one query are one answer: their mean μ (journal.merge_answers)
+        raw = self.journaled_answers(session)
+        journaled = merge_answers(raw)[:n_queries]
+        kept = {entry.id for entry in journaled}
+        candidates = self.choose_queries(n_queries - len(journaled))
+        if candidates is None:
             return False
-        # the journal is written before the answers are used (an interactive teacher has written each as it came):
-        # a crash from here on loses none of them
-        if not isinstance(self.resolve_teacher(), InteractiveTeacher):
-            self.record_answers([JournalEntry(session, pair, label) for pair, label in zip(inputs, labels, strict=True)])
-        self.journal_entries += len(journaled) + len(labels)
-        if journaled:
-            inputs = np.concatenate([np.stack([entry.inputs for entry in journaled]), inputs])
-            labels = np.concatenate([[entry.label for entry in journaled], labels])
+        answers: Future[np.ndarray] = Future()
+        if len(candidates) == 0:
+            answers.set_result(np.zeros(0))
+        elif asynchronous:
+            if self._teacher_thread is None:
+                self._teacher_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="teacher")
+            answers = self._teacher_thread.submit(self.ask_teacher, candidates)
+        else:
+            answers.set_result(self.ask_teacher(candidates))  # a teacher's error is raised here: nothing recorded
+        self._pending_feedback = PendingFeedback(
+            session=session,
+            inputs=np.stack([entry.inputs for entry in journaled]) if journaled else candidates.inputs[:0],
+            labels=np.array([entry.label for entry in journaled], dtype=np.float64),
+            n_journal_entries=sum(entry.id in kept for entry in raw),
+            new_inputs=candidates.inputs,
+            answers=answers,
+            published_step=self.num_timesteps,
+            published_time=time.monotonic(),
+        )
+        return True
+
+    def take_answers(self) -> None:
+        """
+        Close the open feedback session (waiting for its answers if they are not all in): journal them (a scripted
+        teacher's; an interactive teacher journals each as it is given), add the labeled ones to the preferences,
+        learn r̂ and relabel. A teacher's error is raised here, with nothing of the session recorded.
+        """
+        pending = self._pending_feedback
+        if pending is None:
+            raise RuntimeError("no feedback session is open: publish_queries() first")
+        try:
+            new_labels = pending.answers.result()
+        finally:
+            self._pending_feedback = None
+            self._log_teacher_records()
+        interactive = isinstance(self.resolve_teacher(), InteractiveTeacher)
+        # the journal is written before the answers are used: a crash from here on loses none of them
+        if not interactive:
+            self.record_answers(
+                [
+                    JournalEntry(pending.session, pair, label)
+                    for pair, label in zip(pending.new_inputs, new_labels, strict=True)
+                ]
+            )
+        if interactive and self.preference_journal is not None:
+            self.journal_entries = len(self.journal_history())  # every annotator's answers, and none taken back
+        else:
+            self.journal_entries += pending.n_journal_entries + len(new_labels)
+        inputs = np.concatenate([pending.inputs, pending.new_inputs])
+        labels = np.concatenate([pending.labels, new_labels])
         labeled = ~np.isnan(labels)
         self.preferences.add(inputs[labeled], labels[labeled])
         # skipped queries count as asked (they cost the teacher's time) but not as labels
@@ -514,24 +627,29 @@ class PEBBLE(SAC):
         self.logger.record("feedback/asked", self.feedback_asked)
         self.logger.record("feedback/labeled", self.feedback_labeled)
         self.logger.record("feedback/sessions", self.feedback_sessions)
+        if self.asynchronous_feedback:
+            # how long the agent trained on the older reward while this session was answered
+            self.steps_awaiting_feedback += self.num_timesteps - pending.published_step
+            self.logger.record("feedback/steps_awaiting", self.num_timesteps - pending.published_step)
+            self.logger.record("feedback/seconds_awaiting", time.monotonic() - pending.published_time)
         teacher = self.resolve_teacher()
         if isinstance(teacher, InteractiveTeacher):
             teacher.show_progress(self.feedback_asked, self.max_feedback)
         if len(self.preferences) > 0:
             self.learn_reward()
-        return True
 
-    def ask_new_queries(self, n_queries: int) -> tuple[np.ndarray | None, np.ndarray]:
+    def choose_queries(self, n_queries: int) -> SegmentPairs | None:
         """
-        Sample candidate pairs, select ``n_queries`` of them and ask the teacher (``ask_teacher`` checks the answers
-        before anything is recorded). Pairs the journal already holds are never asked again.
+        Sample candidate pairs and select ``n_queries`` of them (``query_selection``; the first session uniform).
+        Pairs the journal already holds are never chosen again.
 
-        :return: the pairs' reward-model inputs (n, 2, k, obs_dim + action_dim) and their labels μ (NaN: skipped),
-            or (None, _) when no segment fits in the stored episodes yet
+        :return: the chosen pairs (fewer when the journal held candidates), or None when no segment fits in the
+            stored episodes yet
         """
-        no_inputs = np.zeros((0, 2, self.segment_length, self.preferences.inputs.shape[-1]), dtype=np.float32)
         if n_queries == 0:
-            return no_inputs, np.zeros(0)
+            obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
+            shape = (0, 2, self.segment_length)
+            return SegmentPairs(np.zeros((*shape, obs_dim)), np.zeros((*shape, action_dim)), np.zeros(shape))
         # the first session is uniform: the reward model knows nothing yet
         selection = "uniform" if self.feedback_sessions == 0 else self.query_selection
         n_candidates = n_queries if selection == "uniform" else n_queries * self.candidates_multiplier
@@ -540,18 +658,26 @@ class PEBBLE(SAC):
         )
         if candidates is None:
             self.warn_short_episodes()
-            return None, np.zeros(0)
-        inputs = candidates.inputs
+            return None
         asked_before = {entry.id for entry in self.journal_history()}
         if asked_before:
-            fresh = np.array([query_id(pair) not in asked_before for pair in inputs])
-            candidates, inputs = candidates[fresh], inputs[fresh]
-        if len(inputs) == 0:
-            return no_inputs, np.zeros(0)
-        if selection != "uniform":
-            chosen = select_queries(self.reward_model.member_segment_returns(inputs), min(n_queries, len(inputs)), selection)
-            candidates, inputs = candidates[chosen], inputs[chosen]
-        return inputs, self.ask_teacher(candidates)
+            candidates = candidates[np.array([query_id(pair) not in asked_before for pair in candidates.inputs])]
+        if selection != "uniform" and len(candidates) > 0:
+            returns = self.reward_model.member_segment_returns(candidates.inputs)
+            candidates = candidates[select_queries(returns, min(n_queries, len(candidates)), selection)]
+        return candidates
+
+    def ask_new_queries(self, n_queries: int) -> tuple[np.ndarray | None, np.ndarray]:
+        """
+        Choose ``n_queries`` pairs (``choose_queries``) and ask the teacher (``ask_teacher`` checks the answers).
+
+        :return: the pairs' reward-model inputs (n, 2, k, obs_dim + action_dim) and their labels μ (NaN: skipped),
+            or (None, _) when no segment fits in the stored episodes yet
+        """
+        candidates = self.choose_queries(n_queries)
+        if candidates is None:
+            return None, np.zeros(0)
+        return candidates.inputs, self.ask_teacher(candidates) if len(candidates) else np.zeros(0)
 
     def learn_reward(self) -> None:
         """Train the reward ensemble on every preference so far (Eqs. 1–2), then relabel the buffer with r̂."""
@@ -629,12 +755,24 @@ class PEBBLE(SAC):
         PreferenceJournal(self.preference_journal).append(entries)
         self.journal_history().extend(entries)
 
-    def retract_answer(self, session: int) -> None:
-        """Record in the journal that the last answer of ``session`` was taken back (a person's undo)."""
+    def retract_answer(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
+        """
+        Record in the journal that an answer of ``session`` was taken back (a person's undo): the latest answer to
+        query ``entry_id`` by ``annotator`` where they are given, else the session's last answer.
+        """
         if self.preference_journal is None:
             return
-        PreferenceJournal(self.preference_journal).append_undo(session)
-        self.journal_history().pop()
+        history = self.journal_history()
+        undone = undone_index(history, session, entry_id, annotator)
+        PreferenceJournal(self.preference_journal).append_undo(session, entry_id, annotator)
+        if undone is not None:
+            del history[undone]
+
+    def _log_teacher_records(self) -> None:
+        """What the teacher asked to log (``FeedbackContext.log``), into the model's logger."""
+        while self._teacher_records:
+            key, value = self._teacher_records.popleft()
+            self.logger.record(key, value)
 
     def save(self, path, exclude: Iterable[str] | None = None, include: Iterable[str] | None = None) -> None:
         """SB3's ``save``, written to a temporary file renamed over ``path`` once complete."""
@@ -711,6 +849,7 @@ class PEBBLE(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         excluded = [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
+        excluded += ["_pending_feedback", "_teacher_thread", "_teacher_records"]  # a session in progress: the journal keeps it
         if self._named_teacher is not None and not isinstance(self._named_teacher[1], ScriptedTeacher):
             # made again from its name when loaded (a person's page and port, a client): only B-Pref's scripted
             # teachers are saved, with their random state

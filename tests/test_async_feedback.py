@@ -1,0 +1,122 @@
+"""Asynchronous feedback: training goes on while the teacher answers; no answer is lost or used twice."""
+
+import threading
+
+import numpy as np
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.journal import PreferenceJournal
+from sb3_pride.common.teachers import PacedTeacher, ScriptedTeacher
+
+
+class WatchingTeacher:
+    """An oracle that takes ``seconds`` per session and notes the model's step count when it starts and ends."""
+
+    def __init__(self, seconds: float):
+        self.oracle = ScriptedTeacher.from_preset("oracle", seed=0)
+        self.seconds = seconds
+        self.model: PEBBLE | None = None
+        self.steps: list[tuple[int, int]] = []
+        self.threads: set[str] = set()
+        self.answers: dict[bytes, float] = {}
+
+    def __call__(self, pairs):
+        start = self.model.num_timesteps
+        threading.Event().wait(self.seconds)
+        labels = self.oracle(pairs)
+        self.steps.append((start, self.model.num_timesteps))
+        self.threads.add(threading.current_thread().name)
+        for inputs, label in zip(pairs.inputs, labels, strict=True):
+            self.answers[inputs.tobytes()] = label
+        return labels
+
+
+@pytest.mark.parametrize("asynchronous", [False, True])
+def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, asynchronous):
+    teacher = WatchingTeacher(seconds=1.0)
+    journal = tmp_path / "journal.jsonl"
+    model = PEBBLE(
+        "MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, asynchronous_feedback=asynchronous,
+        preference_journal=journal, **tiny_kwargs,
+    )  # fmt: skip
+    teacher.model = model
+    model.learn(1200)
+    assert len(teacher.steps) == 3 and model.feedback_sessions == 3 and not model.feedback_open
+    if asynchronous:
+        # each session's answers took a second: the agent kept stepping meanwhile, on the older reward
+        assert all(end > start for start, end in teacher.steps)
+        assert teacher.threads == {"teacher_0"}
+        assert model.steps_awaiting_feedback > 0
+        # the next session is published only once the previous one is answered
+        assert all(teacher.steps[i][1] <= teacher.steps[i + 1][0] for i in range(2))
+    else:
+        assert all(end == start for start, end in teacher.steps) and teacher.threads == {"MainThread"}
+        assert model.steps_awaiting_feedback == 0
+    # every answer used once: journaled once, in the preferences once, with the label the teacher gave
+    entries = PreferenceJournal(journal).read()
+    assert len(entries) == model.feedback_asked == model.journal_entries == 60
+    assert len({entry.id for entry in entries}) == 60
+    assert len(model.preferences) == model.feedback_labeled == 60
+    stored = model.preferences.inputs[: len(model.preferences)]
+    labels = model.preferences.labels[: len(model.preferences)]
+    assert len({inputs.tobytes() for inputs in stored}) == 60
+    for inputs, label in zip(stored, labels, strict=True):
+        assert teacher.answers[inputs.tobytes()] == label
+
+
+def test_a_session_open_when_learn_ends_is_waited_for(tiny_kwargs):
+    teacher = WatchingTeacher(seconds=0.5)
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, asynchronous_feedback=True, **tiny_kwargs)
+    teacher.model = model
+    model.learn(302)  # the first session is published at step 300
+    assert model.feedback_sessions == 1 and model.feedback_asked == 20 and not model.feedback_open
+    assert not model.in_pretraining and model.real_buffer.reward_fn is not None
+
+
+def test_a_teachers_bad_answer_from_its_thread_is_raised_and_nothing_recorded(tiny_kwargs, tmp_path):
+    def teacher(pairs):
+        return np.full(len(pairs), 2.0)
+
+    journal = tmp_path / "journal.jsonl"
+    model = PEBBLE(
+        "MlpPolicy", "Pendulum-v1", teacher=teacher, asynchronous_feedback=True, preference_journal=journal, **tiny_kwargs
+    )
+    with pytest.raises(ValueError, match="teacher labels"):
+        model.learn(400)
+    assert len(model.preferences) == 0 and model.feedback_asked == 0 and not journal.exists()
+    assert not model.feedback_open
+
+
+def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwargs, tmp_path):
+    class SaveWhileOpen(BaseCallback):
+        saved = False
+
+        def _on_step(self) -> bool:
+            if self.model.feedback_open and not self.saved:
+                self.model.save(tmp_path / "open")
+                self.saved = True
+            return True
+
+    kwargs = dict(tiny_kwargs, teacher=PacedTeacher(ScriptedTeacher.from_preset("oracle", seed=0), 0.02))
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, asynchronous_feedback=True, **kwargs)
+    saver = SaveWhileOpen()
+    model.learn(400, callback=saver)
+    assert saver.saved
+    loaded = PRIDE.load(tmp_path / "open", env=model.get_env())
+    # the open session was not saved: the loaded model asks it again (a journal would give its answers back)
+    assert loaded.asynchronous_feedback and not loaded.feedback_open and loaded.feedback_sessions == 0
+    loaded.learn(400, reset_num_timesteps=False)
+    assert loaded.feedback_sessions >= 1 and not loaded.feedback_open
+
+
+def test_bad_settings_name_the_parameter():
+    with pytest.raises(ValueError, match="asynchronous_feedback"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", asynchronous_feedback="yes")
+    oracle = ScriptedTeacher.from_preset("oracle")
+    for bad in (-1.0, float("inf"), "3"):
+        with pytest.raises(ValueError, match="seconds_per_answer"):
+            PacedTeacher(oracle, bad)
+    with pytest.raises(ValueError, match="teacher must be a Teacher"):
+        PacedTeacher("oracle", 1.0)
