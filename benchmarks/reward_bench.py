@@ -54,6 +54,9 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "no early stop": {"target_accuracy": 1.0},
     "crop + no early stop": {"temporal_crop": (35, 45), "target_accuracy": 1.0},
     "plain, flipped labels": {"flip_labels": True},
+    # B-Pref's "mistake" teacher (10% of labels flipped at random), without and with RIME's robust label selection
+    "mistake teacher": {"teacher": "mistake"},
+    "mistake teacher, robust labels": {"teacher": "mistake", "robust_labels": True},
 }
 
 DECISION_RULE = (
@@ -201,11 +204,13 @@ def screen_one(
     import torch as th
 
     from sb3_pride.common.queries import sample_segment_pairs
-    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
+    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, RobustLabels
     from sb3_pride.common.teachers import make_teacher
 
     config = dict(config)
     flip = config.pop("flip_labels", False)
+    teacher_name = config.pop("teacher", "oracle")
+    robust = config.pop("robust_labels", False)
     k, per_session = reward_kwargs["segment_length"], reward_kwargs["queries_per_session"]
     # the split and the labelled pairs depend on the seed only: every configuration sees the same ones
     train, held = split_episodes(episode_bounds(steps["dones"]), held_out_fraction, seed)
@@ -217,7 +222,7 @@ def screen_one(
     held_obs, held_actions = steps["observations"][held_rows], steps["actions"][held_rows]
     held_rewards = steps["true_rewards"][held_rows]
 
-    teacher = make_teacher("oracle", seed=seed)
+    teacher = make_teacher(teacher_name, seed=seed)
     pair_rng, train_rng = np.random.default_rng([seed, 2]), np.random.default_rng([seed, 3])
     # the labelled pairs, in feedback sessions of queries_per_session: a budget's pairs are the first ones
     chunks = []
@@ -227,9 +232,11 @@ def screen_one(
         labels = teacher(pairs)
         chunks.append((pairs.inputs, 1.0 - labels if flip else labels))
 
+    selections: dict[int, RobustLabels] = {}  # each model's own running selection (RIME)
+
     def new_model() -> RewardEnsemble:
         th.manual_seed(seed)
-        return RewardEnsemble(
+        model = RewardEnsemble(
             held_obs.shape[1],
             held_actions.shape[1],
             n_members=reward_kwargs["ensemble_size"],
@@ -237,11 +244,15 @@ def screen_one(
             learning_rate=reward_kwargs["reward_learning_rate"],
             device="cpu",
         )
+        if robust:
+            selections[id(model)] = RobustLabels()
+        return model
 
     def train(model: RewardEnsemble, dataset: PreferenceDataset) -> tuple[float, int]:
         _, accuracy, epochs = model.train_epochs(
-            dataset, reward_kwargs["reward_epochs"], reward_kwargs["reward_batch_size"], rng=train_rng, **config
-        )
+            dataset, reward_kwargs["reward_epochs"], reward_kwargs["reward_batch_size"], rng=train_rng,
+            robust_labels=selections.get(id(model)), **config,
+        )  # fmt: skip
         return accuracy, epochs
 
     def evaluate(model: RewardEnsemble, accuracy: float, epochs: int, seconds: float) -> dict[str, float]:

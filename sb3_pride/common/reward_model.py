@@ -3,6 +3,7 @@
 import itertools
 import math
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 import torch as th
@@ -86,6 +87,79 @@ def crop_pairs(
     cropped = th.gather(inputs, -2, index_t.unsqueeze(-1).expand(*index.shape, input_dim))
     mask = th.as_tensor(steps < lengths, dtype=inputs.dtype, device=inputs.device).expand(*index.shape)
     return cropped, mask, labels
+
+
+@dataclass
+class RobustLabels:
+    """
+    RIME's sample selection for noisy preferences (Cheng et al., ICML 2024, §4.1): before each epoch, every label's
+    divergence from the ensemble's prediction, ℓ = −[(1 − μ) ln(1 − P̂) − μ ln P̂] with P̂ the members' mean
+    P[σ1 ≻ σ0], decides how it is used:
+
+    - trusted (trained on as given) when ℓ < τ_lower = −ln ρ + α ρ + min(β_t s², 3), with ρ the largest divergence
+      among the labels trusted so far and s² their variance (running averages, rate 0.1), and β_t decreasing linearly
+      from ``beta_init`` to ``beta_min`` over ``beta_decay_epochs`` epochs (RIME: over its reward updates);
+    - flipped (trained on as 1 − μ) when ℓ > −ln ``flip_probability``: the ensemble is that sure of the opposite;
+    - left out of that epoch otherwise.
+
+    RIME's defaults (its walker-walk configuration): α = 1, β from 2 to 0.1, flip below probability 0.001.
+    RIME also warm-starts the reward model on the pre-training phase's intrinsic reward; that part is not done here.
+    The running values persist across feedback sessions (they are saved with the model).
+
+    :param alpha: α, the weight of ρ in the base threshold
+    :param beta_init: β at the first epoch
+    :param beta_min: β after ``beta_decay_epochs``
+    :param beta_decay_epochs: reward-learning epochs over which β decreases
+    :param flip_probability: a label whose predicted probability is below this is flipped
+    """
+
+    alpha: float = 1.0
+    beta_init: float = 2.0
+    beta_min: float = 0.1
+    beta_decay_epochs: int = 100
+    flip_probability: float = 0.001
+    epochs: int = 0
+    max_divergence: float | None = None
+    divergence_variance: float = 0.0
+    #: how many labels the last epoch trusted and flipped
+    trusted: int = 0
+    flipped: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("alpha", "beta_init", "beta_min"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
+                raise ValueError(f"robust_labels: {name} must be a finite number >= 0, got {value!r}")
+        if self.beta_min > self.beta_init:
+            raise ValueError(f"robust_labels: beta_min must be <= beta_init, got {self.beta_min} > {self.beta_init}")
+        decay = self.beta_decay_epochs
+        if isinstance(decay, bool) or not isinstance(decay, int) or decay < 1:
+            raise ValueError(f"robust_labels: beta_decay_epochs must be an integer >= 1, got {self.beta_decay_epochs!r}")
+        if not (isinstance(self.flip_probability, float) and 0 < self.flip_probability < 0.5):
+            raise ValueError(f"robust_labels: flip_probability must be a float in (0, 0.5), got {self.flip_probability!r}")
+
+    @property
+    def beta(self) -> float:
+        """β_t: from ``beta_init`` down to ``beta_min``, linearly over ``beta_decay_epochs`` epochs."""
+        return max(self.beta_min, self.beta_init - (self.beta_init - self.beta_min) * self.epochs / self.beta_decay_epochs)
+
+    def select(self, divergence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """
+        One epoch's choice: (trusted, flipped) boolean masks of the labels with divergences ``divergence``; the running
+        values are updated from the trusted ones.
+        """
+        if self.max_divergence is None:  # the first epoch: the untrained model's divergences are the reference
+            self.max_divergence = float(divergence.max(initial=np.log(2.0)))
+        rho = max(self.max_divergence, 1e-8)
+        lower = -np.log(rho) + self.alpha * rho + min(self.beta * self.divergence_variance, 3.0)
+        flipped = divergence > -np.log(self.flip_probability)
+        trusted = (divergence < lower) & ~flipped
+        if trusted.any():
+            self.max_divergence = 0.9 * self.max_divergence + 0.1 * float(divergence[trusted].max())
+            self.divergence_variance = 0.9 * self.divergence_variance + 0.1 * float(divergence[trusted].var())
+        self.epochs += 1
+        self.trusted, self.flipped = int(trusted.sum()), int(flipped.sum())
+        return trusted, flipped
 
 
 class PreferenceDataset:
@@ -216,6 +290,19 @@ class RewardEnsemble(nn.Module):
         ]
         return th.cat(chunks, dim=1).cpu()
 
+    @th.no_grad()
+    def label_divergence(self, inputs: th.Tensor, labels: th.Tensor, batch_size: int = 256) -> np.ndarray:
+        """
+        ℓ per labelled pair: the cross-entropy of its label μ under the members' mean P̂[σ1 ≻ σ0] (RIME's KL
+        divergence between the label and the prediction, up to the label's own entropy, 0 for strict labels).
+        """
+        probabilities = []
+        for start in range(0, len(labels), batch_size):
+            returns = self(inputs[start : start + batch_size]).sum(dim=(-2, -1))  # (members, b, 2)
+            probabilities.append(th.softmax(returns, dim=-1)[..., 1].mean(dim=0))
+        p = th.cat(probabilities).clamp(1e-6, 1 - 1e-6) if probabilities else th.zeros(0, device=self.device)
+        return (-((1 - labels) * th.log1p(-p) + labels * th.log(p))).cpu().numpy()
+
     def train_epochs(
         self,
         dataset: PreferenceDataset,
@@ -224,6 +311,7 @@ class RewardEnsemble(nn.Module):
         target_accuracy: float = 0.97,
         rng: np.random.Generator | None = None,
         temporal_crop: tuple[int, int] | None = None,
+        robust_labels: RobustLabels | None = None,
     ) -> tuple[float, float, int]:
         """
         Train on D for up to ``max_epochs`` epochs, each member on its own shuffling of D (the loss is summed
@@ -234,6 +322,8 @@ class RewardEnsemble(nn.Module):
         :param temporal_crop: SURF's temporal cropping (``crop_pairs``): at every minibatch each member sees each
             pair cropped to a random length in ``[min_length, max_length]``, with its own random start in each
             segment. None: whole segments (PEBBLE)
+        :param robust_labels: RIME's selection of the labels each epoch trains on (trusted as given, confidently
+            wrong ones flipped, the rest left out); its running values are updated. None: every label as given
         :return: (last epoch's mean loss per member, its accuracy, epochs run)
         """
         rng = rng if rng is not None else np.random.default_rng()
@@ -242,10 +332,17 @@ class RewardEnsemble(nn.Module):
         labels = th.as_tensor(dataset.labels, device=self.device)
         n = len(labels)
         loss_value, accuracy, epoch = float("nan"), 0.0, 0
+        all_labels = labels
         for epoch in range(1, max_epochs + 1):  # noqa: B007 (returned: the epochs run)
-            orders = th.as_tensor(np.stack([rng.permutation(n) for _ in range(self.n_members)]), device=self.device)
+            used = np.arange(n)
+            if robust_labels is not None:
+                trusted, flipped = robust_labels.select(self.label_divergence(inputs, all_labels))
+                used = np.flatnonzero(trusted | flipped)
+                labels = th.where(th.as_tensor(flipped, device=self.device), 1.0 - all_labels, all_labels)
+            orders = np.stack([used[rng.permutation(len(used))] for _ in range(self.n_members)])
+            orders = th.as_tensor(orders, device=self.device)
             total_loss, correct, counted = 0.0, 0.0, 0.0
-            for start in range(0, n, batch_size):
+            for start in range(0, len(used), batch_size):
                 idx = orders[:, start : start + batch_size]  # (members, b): each member its own minibatch
                 batch, batch_labels = inputs[idx], labels[idx]  # (members, b, 2, k, d), (members, b)
                 if temporal_crop is not None:
@@ -264,7 +361,7 @@ class RewardEnsemble(nn.Module):
                 correct += float(((predicted == batch_labels) & strict).sum())
                 counted += float(strict.sum())
                 total_loss += loss.item() * idx.shape[1] / self.n_members
-            loss_value = total_loss / n
+            loss_value = total_loss / max(len(used), 1)
             accuracy = correct / max(counted, 1.0)
             if accuracy > target_accuracy:
                 break

@@ -25,7 +25,7 @@ from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretraining
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, merge_answers, query_id, undone_index
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows, sample_segment_pairs, select_queries
-from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, check_temporal_crop
+from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, RobustLabels, check_temporal_crop
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
 from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
 
@@ -103,6 +103,11 @@ class PEBBLE(SAC):
         steps out of 60 stored around each 50-step labelled segment; crops here lie inside the labelled segment, so
         ``max_length <= segment_length``: (35, 45) at segment 50 is QPA's S−15..S−5 (Hu et al., ICLR 2024).
         None: whole segments (PEBBLE)
+    :param robust_labels: RIME's robust reward learning for noisy teachers (Cheng et al., ICML 2024): each epoch
+        trains on the labels the ensemble finds plausible, flips those it is confident are wrong and leaves out the
+        rest (``sb3_pride.common.reward_model.RobustLabels``). True: RIME's settings; a dict: ``RobustLabels``'
+        settings (``alpha``, ``beta_init``, ``beta_min``, ``beta_decay_epochs``, ``flip_probability``). False: every
+        label as given (PEBBLE)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
     :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
         or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
@@ -172,6 +177,7 @@ class PEBBLE(SAC):
         reward_epochs: int = 50,
         reward_early_stop: float | None = 0.97,
         temporal_crop: tuple[int, int] | None = None,
+        robust_labels: bool | dict[str, Any] = False,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
         asynchronous_feedback: bool = False,
@@ -198,6 +204,11 @@ class PEBBLE(SAC):
             raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         temporal_crop = check_temporal_crop(temporal_crop, segment_length)
+        if not isinstance(robust_labels, (bool, np.bool_, dict)):
+            raise ValueError(f"robust_labels must be True, False or a dict of RobustLabels' settings, got {robust_labels!r}")
+        if isinstance(robust_labels, dict):
+            RobustLabels(**robust_labels)  # its own checks name the setting; unknown keys: TypeError
+
         if reward_early_stop is not None:
             check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
         if n_steps != 1:
@@ -269,6 +280,11 @@ class PEBBLE(SAC):
         self.reward_epochs = reward_epochs
         self.reward_early_stop = reward_early_stop
         self.temporal_crop = temporal_crop
+        self.robust_labels = robust_labels if isinstance(robust_labels, dict) else bool(robust_labels)
+        #: RIME's running selection of trusted labels (None: every label as given), saved with the model
+        self.label_selection: RobustLabels | None = None
+        if robust_labels is not False:
+            self.label_selection = RobustLabels(**(robust_labels if isinstance(robust_labels, dict) else {}))
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.asynchronous_feedback = bool(asynchronous_feedback)
@@ -689,12 +705,16 @@ class PEBBLE(SAC):
             target_accuracy=1.0 if self.reward_early_stop is None else self.reward_early_stop,
             rng=self.preference_rng,
             temporal_crop=self.temporal_crop,
+            robust_labels=getattr(self, "label_selection", None),  # models saved by 0.1.0 have none
         )
         self.relabel()
         correlation = self.reward_correlation()
         self.logger.record("reward_model/loss", loss)
         self.logger.record("reward_model/accuracy", accuracy)
         self.logger.record("reward_model/epochs", epochs)
+        if getattr(self, "label_selection", None) is not None:
+            self.logger.record("reward_model/trusted_labels", self.label_selection.trusted)
+            self.logger.record("reward_model/flipped_labels", self.label_selection.flipped)
         self.logger.record("reward_model/true_reward_corr", correlation)
         if self.verbose > 0:
             print(
