@@ -76,9 +76,18 @@ def stack(runs: list[dict], column: str) -> tuple[np.ndarray, np.ndarray]:
     return steps, np.stack([run["curve"][column][:length] for run in runs])
 
 
+#: the primary metric averages a run's last evaluations: steadier than the last one alone
+LAST_EVALUATIONS = 3
+
+
 def final_returns(runs: list[dict]) -> np.ndarray:
     """The last evaluation's true return of every run."""
     return np.array([run["curve"]["true_return"][-1] for run in runs])
+
+
+def primary_returns(runs: list[dict]) -> np.ndarray:
+    """The primary metric of every run: the mean true return of its last ``LAST_EVALUATIONS`` evaluations."""
+    return np.array([np.mean(run["curve"]["true_return"][-LAST_EVALUATIONS:]) for run in runs])
 
 
 def bootstrap(score_dict: dict, func) -> tuple[dict, dict]:
@@ -135,12 +144,12 @@ def plot_curves(groups, task: str, keep, column: str, ylabel: str, title: str, p
 
 
 def aggregate(groups, out: Path) -> dict:
-    """IQM of final returns, normalized per task by the best configuration's mean, with 95% bootstrap CIs."""
+    """IQM of the primary returns (last 3 evaluations), normalized per task by the best configuration's mean, 95% CIs."""
     from rliable import metrics
 
     finals: dict[str, dict[str, np.ndarray]] = defaultdict(dict)
     for (task, name), runs in groups.items():
-        finals[name][task] = final_returns(runs)
+        finals[name][task] = primary_returns(runs)
     tasks = sorted({task for task, _ in groups})
     best = {task: max(np.mean(finals[name][task]) for name in finals if task in finals[name]) for task in tasks}
     scores = {}
@@ -162,7 +171,7 @@ def aggregate(groups, out: Path) -> dict:
         ax.plot([low, high], [y, y], color="k", linewidth=3, alpha=0.4)
         ax.plot(result[name]["iqm"], y, "o", color="k")
     ax.set_yticks(range(len(names)), [f"{name}, n={result[name]['runs']}" for name in names], fontsize=7)
-    ax.set_xlabel("IQM of final return / best configuration's mean (95% bootstrap CI)")
+    ax.set_xlabel("IQM of return (last 3 evaluations) / best configuration's mean (95% bootstrap CI)")
     fig.tight_layout()
     fig.savefig(out / "aggregate_iqm.png", dpi=120)
     plt.close(fig)
@@ -171,7 +180,7 @@ def aggregate(groups, out: Path) -> dict:
 
 def improvements(groups) -> dict:
     """
-    P(X > Y) on the final true return, with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
+    P(X > Y) on the primary return (mean of the last 3 evaluations), with 95% bootstrap CIs (rliable), for the paper's pairwise claims: every
     PRIDE configuration of a task against every PEBBLE configuration (each UTD) at the task's largest budget and at
     its own (Figs. 2 and 4), PRIDE at u = 0.5 against every other u of the same variant and budget (Fig. 5), each tagged PRIDE
     variant against "faithful" PRIDE at the same u and budget (the ablation), each tagged
@@ -190,7 +199,7 @@ def improvements(groups) -> dict:
                           and r[0]["settings"]["feedback"] == budget]  # fmt: skip
                 for rival_name, rival in rivals:
                     if min(len(runs), len(rival)) >= 2:
-                        pairs[f"{task}: {name} > {rival_name}"] = [final_returns(g)[:, None] for g in (runs, rival)]
+                        pairs[f"{task}: {name} > {rival_name}"] = [primary_returns(g)[:, None] for g in (runs, rival)]
             continue
         if settings["algo"] != "pride":
             continue
@@ -208,13 +217,13 @@ def improvements(groups) -> dict:
         for rival_name, rival in rivals:
             if min(len(runs), len(rival)) >= 2:
                 pairs[f"{task}: {name} > {rival_name}"] = [
-                    final_returns(group)[:, None] for group in (runs, rival)
+                    primary_returns(group)[:, None] for group in (runs, rival)
                 ]  # (runs, 1 task)
     return probabilities_of_improvement(pairs)
 
 
 def probabilities_of_improvement(pairs: dict) -> dict:
-    """{"X > Y": [X's final returns, Y's]} -> rliable's P(X > Y), its 95% interval and the seeds of each side."""
+    """{"X > Y": [X's returns, Y's]} -> rliable's P(X > Y), its 95% interval and the seeds of each side."""
     from rliable import metrics
 
     if not pairs:
@@ -254,19 +263,19 @@ def diagnostics(runs: list[dict]) -> dict[str, float]:
 
 
 def summary(groups) -> str:
-    lines = ["| task | configuration | seeds | final return (mean ± std) | best return (mean) | area under curve (mean) | final success | success, area under curve |",
-             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = ["| task | configuration | seeds | return, last 3 evaluations (mean ± std) | final return (mean ± std) | best return (mean) | area under curve (mean) | final success | success, area under curve |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for (task, name), runs in sorted(groups.items()):
-        finals = final_returns(runs)
+        primary, finals = primary_returns(runs), final_returns(runs)
         bests = np.array([np.max(run["curve"]["true_return"]) for run in runs])
         areas = np.array([np.mean(run["curve"]["true_return"]) for run in runs])  # mean over evaluations
         success = [run["curve"]["success"][-1] for run in runs]
         success_area = [np.mean(run["curve"]["success"]) for run in runs]
         success_text = "| " if np.all(np.isnan(success)) else f"{np.nanmean(success):.2f} | {np.nanmean(success_area):.2f}"
         lines.append(
-            f"| {task} | {name} | {len(runs)} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |"
+            f"| {task} | {name} | {len(runs)} | {primary.mean():.1f} ± {primary.std():.1f} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |"
         )
-    lines += ["", "Probability of improvement (final true return, rliable, 95% bootstrap CI):", "",
+    lines += ["", "Probability of improvement (return, mean of the last 3 evaluations; rliable, 95% bootstrap CI):", "",
               "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
     lines += [improvement_row(key, value) for key, value in improvements(groups).items()]
     lines += ["", "At the end of training (means over the runs that have progress.csv):", "",
@@ -289,13 +298,15 @@ def summary(groups) -> str:
 
 
 def compare(groups, pairs: list[list[str]], parser: argparse.ArgumentParser) -> None:
-    """P(X > Y) on the final true return (rliable, as in summary.md) for pairs that the summary does not make."""
+    """P(X > Y) on the primary return (rliable, as in summary.md) for pairs that the summary does not make."""
     for task, *names in pairs:
         for name in names:
             if (task, name) not in groups:
                 known = sorted(n for t, n in groups if t == task)
                 parser.error(f"--compare: no runs of {name!r} on {task!r}; configurations there: {known}")
-    scores = {f"{task}: {x} > {y}": [final_returns(groups[(task, name)])[:, None] for name in (x, y)] for task, x, y in pairs}
+    scores = {
+        f"{task}: {x} > {y}": [primary_returns(groups[(task, name)])[:, None] for name in (x, y)] for task, x, y in pairs
+    }
     for key, value in probabilities_of_improvement(scores).items():
         print(improvement_row(key, value))
 

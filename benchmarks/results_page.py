@@ -5,7 +5,8 @@ The results page, generated from the committed runs of the grid files (``benchma
     python benchmarks/results_page.py --from-json     # re-render the pages from results.json (no recount)
 
 Every number shown anywhere comes from one data file, ``benchmarks/results/results.json``, written here from the run
-folders with ``plot.py``'s statistics (final true return, mean ± std over seeds; rliable's probability of improvement
+folders with ``plot.py``'s statistics (the primary return: the mean of each run's last three evaluations, mean ± std
+over seeds, with the final return and the area under the curve beside it; rliable's probability of improvement
 with a 95% stratified-bootstrap interval, 2000 resamples, each pair drawn from NumPy seed 0). It is rendered into:
 
 - ``benchmarks/results/benchmark.md``: one table per task, a row per configuration, budget and synthetic ratio,
@@ -123,17 +124,22 @@ def label_of(row: dict) -> str:
 def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str, Any]:
     """The data of the page: every row's statistics and every comparison, from the run folders."""
     rows, extra = collect(grid_files, runs_folder)
-    finals = {}
+    finals = {}  # the primary return of each run, which the comparisons use
     for key, row in rows.items():
         found = runs_of(row)
-        finals[key] = plot.final_returns(found) if found else None
+        finals[key] = plot.primary_returns(found) if found else None
+        last = plot.final_returns(found) if found else None
         successes = [r["curve"]["success"][-1] for r in found]
         has_success = found and not all(value != value for value in successes)  # NaN: no success column
         row["seeds"] = [r["settings"]["seed"] for r in found]
         row["runs"] = [run.run_name(spec) for spec in sorted(row["specs"], key=lambda spec: spec["seed"])]
-        row["final_return"] = None if not found else {
+        row["primary_return"] = None if not found else {
             "mean": round(float(finals[key].mean()), 4), "std": round(float(finals[key].std()), 4),
             "per_seed": [round(float(value), 3) for value in finals[key]],
+        }  # fmt: skip
+        row["final_return"] = None if not found else {
+            "mean": round(float(last.mean()), 4), "std": round(float(last.std()), 4),
+            "per_seed": [round(float(value), 3) for value in last],
         }  # fmt: skip
         row["area_under_curve"] = None if not found else round(float(sum(r["curve"]["true_return"].mean() for r in found) / len(found)), 4)  # fmt: skip
         row["final_success"] = round(float(sum(successes) / len(successes)), 4) if has_success else None
@@ -190,8 +196,10 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         tasks.setdefault(row["task"], []).append({k: v for k, v in row.items() if k not in ("specs", "out")})
     return {
         "generated_by": "python benchmarks/results_page.py",
-        "statistics": "final true return (the last evaluation: 5 deterministic episodes), mean ± std over seeds; P(X > Y) "
-        "rliable's probability of improvement, 95% stratified-bootstrap interval, 2000 resamples, NumPy seed 0 per pair",
+        "statistics": f"return: the mean true return of each run's last {plot.LAST_EVALUATIONS} evaluations (5 deterministic "
+        "episodes each), mean ± std over seeds, with the final return (the last evaluation) and the area under the curve "
+        "(the mean over evaluations) beside it; P(X > Y) on the return: rliable's probability of improvement, 95% "
+        "stratified-bootstrap interval, 2000 resamples, NumPy seed 0 per pair",
         "tasks": tasks,
         "comparisons": comparisons,
     }
@@ -201,11 +209,13 @@ def number(value: float, digits: int = 1) -> str:
     return f"{value:.{digits}f}"
 
 
-def final_text(row: dict) -> str:
-    if row["final_return"] is None:
+def final_text(row: dict, metric: str = "primary_return") -> str:
+    if row[metric] is None:
         return "not run"
-    text = f"{number(row['final_return']['mean'])} ± {number(row['final_return']['std'])}"
-    return text + (f" (success {number(row['final_success'], 2)})" if row["final_success"] is not None else "")
+    text = f"{number(row[metric]['mean'])} ± {number(row[metric]['std'])}"
+    if metric == "final_return" and row["final_success"] is not None:
+        text += f" (success {number(row['final_success'], 2)})"
+    return text
 
 
 def p_text(entry: dict | None) -> str:
@@ -223,17 +233,20 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
         reference = next((row["reference_feedback"] for row in rows if row["reference_feedback"]), None)
         if reference:
             lines += [
-                f"P: the probability that a run of the configuration ends above a run of PEBBLE at {reference} queries.",
+                f"P: the probability that a run of the configuration ends above a run of PEBBLE at {reference} queries "
+                f"(on the return of the last {plot.LAST_EVALUATIONS} evaluations).",
                 "",
             ]
-        lines += ["| configuration | queries | u | seeds | final return | area under curve | P(> PEBBLE) [95% CI] | reproduce |",
-                  "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+        lines += [f"| configuration | queries | u | seeds | return (last {plot.LAST_EVALUATIONS} evaluations) | final return | "
+                  "area under curve | P(> PEBBLE) [95% CI] | reproduce |",
+                  "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for row in rows:
             feedback = "—" if row["feedback"] is None else str(row["feedback"])
             ratio = "—" if row["ratio"] is None else str(row["ratio"])
             area = "" if row["area_under_curve"] is None else number(row["area_under_curve"])
             lines.append(f"| {row['name']} (`{row['configuration']}`) | {feedback} | {ratio} | {len(row['seeds'])} | "
-                         f"{final_text(row)} | {area} | {p_text(row['against_pebble'])} | `{row['command']}` |")  # fmt: skip
+                         f"{final_text(row)} | {final_text(row, 'final_return')} | {area} | {p_text(row['against_pebble'])} | "
+                         f"`{row['command']}` |")  # fmt: skip
         comparisons = [c for c in data["comparisons"] if c["task"] == task]
         if comparisons:
             lines += ["", "| comparison | seeds | P(X > Y) [95% CI] | reproduce |", "|---|---|---|---|"]
@@ -276,7 +289,8 @@ def render_docs(data: dict[str, Any]) -> str:
 
 def render_summary(data: dict[str, Any]) -> str:
     """The README's summary table: the rows of the grid files marked ``summary: true``."""
-    lines = ["| task | configuration | queries | seeds | final return | P(better than PEBBLE) [95% CI] |",
+    lines = [f"| task | configuration | queries | seeds | return (last {plot.LAST_EVALUATIONS} evaluations) | "
+             "P(better than PEBBLE) [95% CI] |",
              "|---|---|---|---|---|---|"]  # fmt: skip
     for task, rows in data["tasks"].items():
         for row in rows:
@@ -291,7 +305,7 @@ def render_summary(data: dict[str, Any]) -> str:
     basis = ", ".join(f"{feedback} queries on {' and '.join(tasks)}" for feedback, tasks in budgets.items())
     return (
         "\n".join(lines)
-        + f"\n\nFinal true return, mean ± std over seeds; P: probability of improvement over PEBBLE at the task's full "
+        + f"\n\nTrue return, mean of each run's last {plot.LAST_EVALUATIONS} evaluations, mean ± std over seeds; P: probability of improvement over PEBBLE at the task's full "
         f"budget ({basis}), rliable, 95% bootstrap interval. Every row, its runs and the command that re-creates them: "
         "`benchmarks/results/benchmark.md`.\n"
     )

@@ -57,6 +57,13 @@ CONFIGS: dict[str, dict[str, Any]] = {
     # B-Pref's "mistake" teacher (10% of labels flipped at random), without and with RIME's robust label selection
     "mistake teacher": {"teacher": "mistake"},
     "mistake teacher, robust labels": {"teacher": "mistake", "robust_labels": True},
+    # SURF's pseudo-labels on unlabelled pairs of the training episodes (SURF's walker settings)
+    "pseudo-labels": {"pseudo_labels": True},
+    "crop + pseudo-labels": {"temporal_crop": (35, 45), "pseudo_labels": True},
+    "crop + pseudo-labels + no early stop": {"temporal_crop": (35, 45), "pseudo_labels": True, "target_accuracy": 1.0},
+    # query selection, in --sessions mode only (each session chooses among 10x candidates with the model so far)
+    "disagreement queries": {"query_selection": "disagreement"},
+    "kcenter + disagreement queries": {"query_selection": "kcenter_disagreement"},
 }
 
 DECISION_RULE = (
@@ -204,13 +211,18 @@ def screen_one(
     import torch as th
 
     from sb3_pride.common.queries import sample_segment_pairs
-    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, RobustLabels
+    from sb3_pride.common.queries import pair_features, select_queries
+    from sb3_pride.common.reward_model import PreferenceDataset, PseudoLabels, RewardEnsemble, RobustLabels
     from sb3_pride.common.teachers import make_teacher
 
     config = dict(config)
     flip = config.pop("flip_labels", False)
     teacher_name = config.pop("teacher", "oracle")
     robust = config.pop("robust_labels", False)
+    pseudo = PseudoLabels() if config.pop("pseudo_labels", False) else None
+    selection = config.pop("query_selection", "uniform")
+    if selection != "uniform" and not sessions:
+        raise SystemExit("a query_selection configuration needs --sessions (queries chosen with the model so far)")
     k, per_session = reward_kwargs["segment_length"], reward_kwargs["queries_per_session"]
     # the split and the labelled pairs depend on the seed only: every configuration sees the same ones
     train, held = split_episodes(episode_bounds(steps["dones"]), held_out_fraction, seed)
@@ -248,10 +260,16 @@ def screen_one(
             selections[id(model)] = RobustLabels()
         return model
 
+    unlabeled_rng = np.random.default_rng([seed, 4])
+
     def train(model: RewardEnsemble, dataset: PreferenceDataset) -> tuple[float, int]:
+        unlabeled = None
+        if pseudo is not None:
+            n = min(pseudo.unlabeled_per_label * len(dataset), pseudo.max_unlabeled)
+            unlabeled = sample_segment_pairs(train_buffer, n, k, len(train), unlabeled_rng).inputs
         _, accuracy, epochs = model.train_epochs(
             dataset, reward_kwargs["reward_epochs"], reward_kwargs["reward_batch_size"], rng=train_rng,
-            robust_labels=selections.get(id(model)), **config,
+            robust_labels=selections.get(id(model)), unlabeled=unlabeled, pseudo_labels=pseudo, **config,
         )  # fmt: skip
         return accuracy, epochs
 
@@ -271,7 +289,17 @@ def screen_one(
         # as PEBBLE: one model, trained on every label so far after each session
         model, dataset = new_model(), PreferenceDataset(k, input_dim)
         epochs_run, start = 0, time.time()
-        for inputs, labels in chunks:
+        for session, (inputs, labels) in enumerate(chunks):
+            if selection != "uniform" and session > 0:  # PEBBLE's: among 10x candidates, with the model so far
+                candidates = sample_segment_pairs(train_buffer, 10 * per_session, k, len(train), pair_rng)
+                n_obs = candidates.observations.shape[-1]
+                chosen = select_queries(
+                    model.member_segment_returns(candidates.inputs), per_session, selection,
+                    features=pair_features(candidates.observations),
+                    labeled_features=pair_features(dataset.inputs[..., :n_obs]),
+                )  # fmt: skip
+                inputs, labels = candidates[chosen].inputs, teacher(candidates[chosen])
+                labels = 1.0 - labels if flip else labels
             dataset.add(inputs, labels)
             accuracy, epochs = train(model, dataset)
             epochs_run += epochs

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_pride import PEBBLE, PRIDE
-from sb3_pride.common.journal import PreferenceJournal
-from sb3_pride.common.teachers import PacedTeacher, ScriptedTeacher
+from sb3_pride import PEBBLE
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal
+from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, ScriptedTeacher
 
 
 class WatchingTeacher:
@@ -42,7 +42,7 @@ def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, as
         preference_journal=journal, **tiny_kwargs,
     )  # fmt: skip
     teacher.model = model
-    model.learn(1200)
+    model.learn(1000)
     assert len(teacher.steps) == 3 and model.feedback_sessions == 3 and not model.feedback_open
     if asynchronous:
         # each session's answers took a second: the agent kept stepping meanwhile, on the older reward
@@ -100,11 +100,11 @@ def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwa
             return True
 
     kwargs = dict(tiny_kwargs, teacher=PacedTeacher(ScriptedTeacher.from_preset("oracle", seed=0), 0.02))
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, asynchronous_feedback=True, **kwargs)
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, asynchronous_feedback=True, **kwargs)
     saver = SaveWhileOpen()
     model.learn(400, callback=saver)
     assert saver.saved
-    loaded = PRIDE.load(tmp_path / "open", env=model.get_env())
+    loaded = PEBBLE.load(tmp_path / "open", env=model.get_env())
     # the open session was not saved: the loaded model asks it again (a journal would give its answers back)
     assert loaded.asynchronous_feedback and not loaded.feedback_open and loaded.feedback_sessions == 0
     loaded.learn(400, reset_num_timesteps=False)
@@ -120,3 +120,37 @@ def test_bad_settings_name_the_parameter():
             PacedTeacher(oracle, bad)
     with pytest.raises(ValueError, match="teacher must be a Teacher"):
         PacedTeacher("oracle", 1.0)
+
+
+class LoggingTeacher(InteractiveTeacher):
+    """An interactive teacher (as a person's UI is) that journals its answers itself and logs a number per session."""
+
+    def __init__(self):
+        self.oracle = ScriptedTeacher.from_preset("oracle", seed=0)
+
+    def attach(self, env, buffer) -> None:
+        pass
+
+    def ask(self, pairs, context):
+        labels = self.oracle(pairs)
+        answers = zip(pairs.inputs, labels, strict=True)
+        context.record([JournalEntry(context.session, inputs, label, annotator="ana") for inputs, label in answers])
+        context.log("annotators/ana/answers", float(len(pairs)))
+        return labels
+
+
+def test_an_interactive_teachers_log_and_journal_reach_the_model_from_its_thread(tiny_kwargs, tmp_path):
+    import pandas as pd
+    from stable_baselines3.common.logger import configure
+
+    journal = tmp_path / "journal.jsonl"
+    model = PEBBLE(
+        "MlpPolicy", "Pendulum-v1", seed=0, teacher=LoggingTeacher(), asynchronous_feedback=True,
+        preference_journal=journal, **tiny_kwargs,
+    )  # fmt: skip
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(700, log_interval=1)
+    entries = PreferenceJournal(journal).read()
+    assert model.journal_entries == len(entries) == model.feedback_asked == 40
+    assert {entry.annotator for entry in entries} == {"ana"}
+    assert pd.read_csv(tmp_path / "progress.csv")["annotators/ana/answers"].dropna().tolist()[-1] == 20.0

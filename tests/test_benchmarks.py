@@ -7,6 +7,7 @@ import json
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sb3_pride.pride.recipes import RENAMED_SETTINGS
@@ -398,6 +399,9 @@ def test_results_json_holds_every_run_of_the_grid_files(page):
     for key, row in rows.items():
         finals = [round(float(run["curve"]["true_return"][-1]), 3) for run in page.runs_of(row)]
         assert recorded[key]["final_return"]["per_seed"] == finals, key
+        # the primary return: the mean of each run's last three evaluations
+        primary = [round(float(np.mean(run["curve"]["true_return"][-3:])), 3) for run in page.runs_of(row)]
+        assert recorded[key]["primary_return"]["per_seed"] == primary, key
         assert recorded[key]["command"] == f"python benchmarks/grid.py {row['grid']}"
 
 

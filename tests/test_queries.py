@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 import torch as th
 from gymnasium import spaces
 
@@ -78,3 +79,39 @@ def test_relabel_writes_reward_model_output_everywhere():
     expected = reward_fn(buffer.observations, buffer.actions)
     np.testing.assert_allclose(buffer.rewards, expected, rtol=1e-5)
     assert np.all(buffer.true_rewards == 1.0)  # the true reward is untouched
+
+
+def test_kcenter_picks_the_uncovered_clusters_first():
+    """Three tight clusters of candidates, one already covered by a labelled pair: k-center asks about one pair of
+    each uncovered cluster before a second pair of any, and never about the covered one; disagreement alone would
+    crowd into the cluster where the members disagree."""
+    from sb3_pride.common.queries import kcenter_greedy
+
+    rng = np.random.default_rng(0)
+    centers = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])
+    features = np.concatenate([c + 0.1 * rng.normal(size=(20, 2)) for c in centers])
+    cluster = np.repeat(np.arange(3), 20)
+    picked = kcenter_greedy(features, centers[:1], 2)
+    assert sorted(cluster[picked]) == [1, 2]
+    assert len(set(cluster[kcenter_greedy(features, np.zeros((0, 2)), 3)])) == 3
+
+    returns = th.zeros(3, 60, 2)
+    returns[:, 40:, 1] = th.tensor([-3.0, 0.0, 3.0])[:, None]  # the members disagree on cluster 2 only
+    assert set(cluster[select_queries(returns, 2, "disagreement")]) == {2}
+    chosen = select_queries(returns, 2, "kcenter", features=features, labeled_features=centers[:1])
+    assert sorted(cluster[chosen]) == [1, 2]
+    # among the more uncertain half (cluster 2 and the first-ranked ties), still spread
+    chosen = select_queries(returns, 2, "kcenter_disagreement", features=features, labeled_features=centers[:1])
+    assert len(set(chosen)) == 2 and 2 in set(cluster[chosen])
+    with pytest.raises(ValueError, match="features"):
+        select_queries(returns, 2, "kcenter")
+    with pytest.raises(ValueError, match="query_selection"):
+        select_queries(returns, 2, "coverage")
+
+
+def test_pebble_runs_with_kcenter_query_selection(tiny_kwargs):
+    from sb3_pride import PEBBLE
+
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, query_selection="kcenter_disagreement", **tiny_kwargs)
+    model.learn(700)
+    assert model.feedback_sessions == 2 and model.feedback_asked == 40

@@ -1,3 +1,5 @@
+import copy
+
 import numpy as np
 import pytest
 import torch as th
@@ -8,6 +10,7 @@ from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.reward_model import (
     PreferenceDataset,
     RewardEnsemble,
+    PseudoLabels,
     RobustLabels,
     check_temporal_crop,
     crop_pairs,
@@ -197,9 +200,7 @@ def test_robust_labels_leave_out_the_flipped_labels_and_learn_a_better_reward():
         scores[robust] = held_out_rank_correlation(model)
         if robust:
             inputs, labels = th.as_tensor(dataset.inputs), th.as_tensor(dataset.labels)
-            trusted, _ = RobustLabels(**{**vars(selection), "epochs": selection.epochs}).select(
-                model.label_divergence(inputs, labels)
-            )
+            trusted, _ = copy.deepcopy(selection).select(model.label_divergence(inputs, labels))
             assert (~trusted[wrong]).mean() > 0.6 and (~trusted[~wrong]).mean() < 0.25
     assert scores[True] > scores[False] + 0.02, scores
 
@@ -245,3 +246,48 @@ def test_pebble_with_robust_labels_logs_its_selection_and_saves_it(tiny_kwargs, 
 
     progress = pd.read_csv(tmp_path / "progress.csv")
     assert progress["reward_model/trusted_labels"].notna().any()
+
+
+def test_pseudo_labels_teach_each_member_its_own_confident_answers_and_nothing_else():
+    """SURF's unlabelled loss: zero where no member is confident (an untrained ensemble at τ = 0.99); after training
+    on labels, a step on it alone makes the members surer of the answers they were confident about (a loss that
+    taught the opposite label, or every pair, would not)."""
+    dataset, _ = noisy_preferences(200, eps_mistake=0.0, seed=0)
+    unlabeled, _ = noisy_preferences(500, eps_mistake=0.0, seed=1)
+    pairs = th.as_tensor(unlabeled.inputs)
+    th.manual_seed(0)
+    model = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
+    rng = np.random.default_rng(0)
+    assert model.pseudo_label_loss(pairs, 64, PseudoLabels(threshold=0.99), rng, None).item() == 0.0
+
+    model.train_epochs(dataset, max_epochs=30, batch_size=64, rng=rng)
+
+    def confidence() -> th.Tensor:
+        with th.no_grad():
+            p = th.softmax(model(pairs).sum(dim=(-2, -1)), dim=-1)[..., 1]  # (members, n)
+        return th.maximum(p, 1 - p)
+
+    settings = PseudoLabels(threshold=0.9, ratio=8)
+    before = confidence()
+    confident = before > settings.threshold
+    assert 0.2 < confident.float().mean() < 0.95  # some pairs are sure, some are not
+    for _ in range(5):
+        loss = model.pseudo_label_loss(pairs, 64, settings, rng, (7, 9))  # on crops, as with temporal_crop
+        model.optimizer.zero_grad()
+        loss.backward()
+        model.optimizer.step()
+    after = confidence()
+    assert after[confident].mean() > before[confident].mean()
+
+
+def test_pebble_with_pseudo_labels_trains_and_bad_settings_are_named(tiny_kwargs):
+    for bad, match in (({"threshold": 1.0}, "threshold"), ({"ratio": 0}, "ratio"), ({"tau": 0.9}, "unknown settings")):
+        with pytest.raises(ValueError, match=match):
+            PEBBLE("MlpPolicy", "Pendulum-v1", pseudo_labels=bad)
+    with pytest.raises(ValueError, match="pseudo_labels"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", pseudo_labels="surf")
+    model = PEBBLE(
+        "MlpPolicy", "Pendulum-v1", seed=0, pseudo_labels={"unlabeled_per_label": 5}, temporal_crop=(6, 9), **tiny_kwargs
+    )
+    model.learn(400)
+    assert model.feedback_sessions == 1 and len(model.unlabeled_pairs(PseudoLabels(unlabeled_per_label=5))) == 100

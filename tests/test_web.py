@@ -1,27 +1,33 @@
-"""WebTeacher: the HTTP boundary, and a person's keys in real headless Chromium during a PEBBLE run."""
+"""WebTeacher: the HTTP boundary (one person, several annotators with tokens, known answers), and people's keys in
+real headless Chromium during a PEBBLE run."""
 
 import json
+import math
 import os
+import pickle
 import socket
 import threading
 import time
 import urllib.error
 import urllib.request
+from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import skip_unless
 
 from sb3_pride import PEBBLE
-from sb3_pride.common.journal import PreferenceJournal
-from sb3_pride.human.web import WebTeacher, _Query, _Session
+from sb3_pride.common.journal import PreferenceJournal, query_id
+from sb3_pride.common.queries import SegmentPairs
+from sb3_pride.common.teachers import FeedbackContext
+from sb3_pride.human.web import GENERIC_INSTRUCTIONS, WebTeacher, _Query, _Session, default_instructions
 
 pytest.importorskip("flask")
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 
 
-def request(url: str, body: dict | None = None, headers: dict | None = None) -> tuple[int, dict, bytes]:
-    data = None if body is None else json.dumps(body).encode()
+def request(url: str, body: dict | bytes | None = None, headers: dict | None = None) -> tuple[int, dict, bytes]:
+    data = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
     req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json", **(headers or {})})
     try:
         with urllib.request.urlopen(req, timeout=10) as response:
@@ -30,6 +36,105 @@ def request(url: str, body: dict | None = None, headers: dict | None = None) -> 
         return error.code, dict(error.headers), error.read()
 
 
+class Page:
+    """An annotator's page, through the HTTP API (what the browser sends)."""
+
+    def __init__(self, teacher: WebTeacher, name: str | None = None):
+        self.url, self.name = teacher.url, name
+        self.headers = {} if name is None else {"X-Annotator-Token": teacher.links[name].split("token=")[1]}
+
+    def state(self) -> dict:
+        status, _, body = request(self.url + "api/state", headers=self.headers)
+        assert status == 200, body
+        return json.loads(body)
+
+    def shown(self) -> str | None:
+        query = self.state()["query"]
+        return None if query is None else query["id"]
+
+    def answer(self, question: str | None, label) -> int:
+        return request(self.url + "api/answer", {"id": question, "label": label}, self.headers)[0]
+
+    def undo(self) -> int:
+        return request(self.url + "api/undo", {}, self.headers)[0]
+
+
+class Run:
+    """What a model gives an interactive teacher: its preference journal and its logger."""
+
+    def __init__(self, path: Path):
+        self.journal = PreferenceJournal(path)
+        self.logged: dict[str, float] = {}
+
+    def context(self, session: int = 1) -> FeedbackContext:
+        return FeedbackContext(session, 0, 100, self.journal.append, self.journal.append_undo, self.logged.__setitem__)
+
+
+class FakeRenderer:
+    """Black frames: the HTTP tests need clips, not pictures."""
+
+    env_id, fps = "sb3_pride/walker-walk-v0", 10.0
+
+    def render(self, states: np.ndarray) -> np.ndarray:
+        return np.zeros((len(states), 16, 16, 3), np.uint8)
+
+    def close(self) -> None:
+        pass
+
+
+def make_pairs(n: int, seed: int = 0, k: int = 4) -> SegmentPairs:
+    """``n`` pairs whose segments earn a constant true reward in [0, 1) per step."""
+    rng = np.random.default_rng(seed)
+    rewards = np.repeat(rng.random((n, 2, 1)), k, axis=-1)
+    return SegmentPairs(rng.normal(size=(n, 2, k, 3)), rng.normal(size=(n, 2, k, 1)), rewards, 0.5 * k, np.zeros((n, 2, k, 1)))
+
+
+def true_answer(pairs: SegmentPairs, inputs: np.ndarray) -> float:
+    index = next(i for i, pair in enumerate(pairs.inputs) if np.array_equal(pair, inputs))
+    returns = pairs.true_rewards[index].sum(axis=-1)
+    return float(returns[1] > returns[0])
+
+
+@pytest.fixture
+def serve(tmp_path):
+    """Makes WebTeachers that serve and render black clips without an env (closed at the end)."""
+    teachers = []
+
+    def make(**kwargs) -> WebTeacher:
+        teacher = WebTeacher(port=0, clip_dir=tmp_path / "clips", **kwargs)
+        teacher._attached, teacher._renderer = True, FakeRenderer()
+        teacher._start_server()
+        teachers.append(teacher)
+        return teacher
+
+    yield make
+    for teacher in teachers:
+        teacher.close()
+
+
+def ask_in_thread(teacher: WebTeacher, pairs: SegmentPairs, context: FeedbackContext) -> tuple[threading.Thread, dict]:
+    """``teacher.ask`` in a thread of its own (as a model answered asynchronously calls it), once its clips are ready."""
+    result: dict = {}
+
+    def ask() -> None:
+        try:
+            result["labels"] = teacher.ask(pairs, context)
+        except BaseException as error:  # reported by the test's thread
+            result["error"] = error
+
+    thread = threading.Thread(target=ask, daemon=True)
+    thread.start()
+    _wait(lambda: teacher._session is not None and all(query.ready for query in teacher._session.queries), timeout=30)
+    return thread, result
+
+
+def finish(thread: threading.Thread, result: dict) -> np.ndarray:
+    thread.join(timeout=10)
+    assert not thread.is_alive() and "error" not in result, result
+    return result["labels"]
+
+
+# one person on this machine ------------------------------------------------------------------------------------------
 @pytest.fixture
 def open_session(tiny_kwargs, tmp_path):
     """A WebTeacher serving one open session of two queries, answered into a real model's journal."""
@@ -42,7 +147,8 @@ def open_session(tiny_kwargs, tmp_path):
     inputs = np.zeros((2, tiny_kwargs["segment_length"], 4), np.float32)
     clips = {name: (f"/clips/{name}-left.mp4", f"/clips/{name}-right.mp4") for name in "ab"}
     queries = [_Query(name, inputs + i, clips[name], ready=True) for i, name in enumerate("ab")]
-    teacher._session = _Session(1, queries, 0, model.record_answers, model.retract_answer)
+    context = FeedbackContext(1, 0, 60, model.record_answers, model.retract_answer)
+    teacher._session = _Session(1, queries, 0, context)
     teacher.model = model  # the journal's owner, for the assertions
     yield teacher
     teacher.close()
@@ -50,18 +156,21 @@ def open_session(tiny_kwargs, tmp_path):
 
 def test_bad_posts_are_refused_and_record_nothing(open_session):
     teacher = open_session
+    assert teacher.state()["query"]["id"] == "a"  # the page shows "a"
     for body in ({"id": "zzz", "label": 1}, {"id": "a", "label": 0.7}, {"id": "a", "label": "left"},
-                 {"id": "a", "label": True}, {"id": "a"}, {"label": 1}):  # fmt: skip
+                 {"id": "a", "label": True}, {"id": 3, "label": 1}, {"id": "a"}, {"label": 1}):  # fmt: skip
         status, _, reply = request(teacher.url + "api/answer", body)
-        assert status == 400 and json.loads(reply)["error"], body
+        assert status in (400, 404) and json.loads(reply)["error"], body
+    status, _, _ = request(teacher.url + "api/answer", b"not json")
+    assert status == 400
     status, _, _ = request(teacher.url + "api/undo", {})
-    assert status == 400  # nothing to undo yet
+    assert status == 409  # nothing to undo yet
     assert teacher.state()["answered"] == 0 and teacher.model.journal_history() == []
 
     status, _, _ = request(teacher.url + "api/answer", {"id": "a", "label": 0.5})
     assert status == 200 and teacher.state()["answered"] == 1
     status, _, _ = request(teacher.url + "api/answer", {"id": "a", "label": 1})
-    assert status == 400  # answered already
+    assert status == 409  # answered already
     assert [entry.label for entry in PreferenceJournal(teacher.model.preference_journal).read()] == [0.5]
 
 
@@ -84,31 +193,275 @@ def test_a_port_in_use_is_named():
 
 
 def test_bad_settings_name_the_parameter():
-    for kwargs, name in (({"port": 70000}, "port"), ({"timeout": 0}, "timeout"), ({"width": 8}, "width")):
+    for kwargs, name in (
+        ({"port": 70000}, "port"),
+        ({"timeout": 0}, "timeout"),
+        ({"width": 8}, "width"),
+        ({"host": "0.0.0.0"}, "annotators"),  # beyond this machine: tokens or nothing
+        ({"host": "192.168.1.7"}, "annotators"),
+        ({"annotators": []}, "annotators"),
+        ({"annotators": "ana"}, "annotators"),
+        ({"annotators": ["ana", "ana"]}, "annotators"),
+        ({"annotators": ["ana smith"]}, "annotators"),
+        ({"annotators": ["ana"], "answers_per_query": 2}, "answers_per_query"),
+        ({"answers_per_query": 0}, "answers_per_query"),
+        ({"known_answer_rate": 1.0}, "known_answer_rate"),
+        ({"known_answer_rate": -0.1}, "known_answer_rate"),
+        ({"known_answer_margin": 0}, "known_answer_margin"),
+        ({"instructions": 3}, "instructions"),
+        ({"seed": 1.5}, "seed"),
+    ):
         with pytest.raises(ValueError, match=name):
             WebTeacher(**kwargs)
+    for host in ("localhost", "::1", "127.0.0.2"):  # this machine only: no token needed
+        assert WebTeacher(host=host).links == {}
 
 
 def test_a_timeout_skips_the_rest(open_session, capsys):
     teacher = open_session
     teacher.timeout, session = 0.3, teacher._session
-    teacher.answer("a", 1)
+    teacher.state()
+    assert teacher.answer("a", 1) == (200, "recorded")
     assert teacher._wait_for_answers() is session and teacher._session is None
-    assert session.queries[0].label == 1 and np.isnan(session.queries[1].label)
+    assert session.queries[0].label() == 1 and np.isnan(session.queries[1].label())
     assert len(teacher.model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
     assert "timeout, 1 queries skipped" in capsys.readouterr().out
+
+
+def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session, capsys):
+    teacher = open_session
+    teacher.reminder_interval, teacher.timeout = 0.1, 0.45
+    teacher._wait_for_answers()  # nobody answers: the page was never opened
+    reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
+    assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
+
+
+def test_only_the_question_shown_is_answered_and_nothing_reaches_a_closed_session(open_session):
+    teacher = open_session
+    assert teacher.state()["query"]["id"] == "a"
+    status, _, reply = request(teacher.url + "api/answer", {"id": "b", "label": 1})  # "a" is shown, "b" preloaded
+    assert status == 403 and "not the one shown to you" in json.loads(reply)["error"]
+    assert teacher.answer("a", 0)[0] == 200
+    assert teacher.answer("b", 1)[0] == 200
+    session = teacher._wait_for_answers()  # all answered: the session closes
+    assert [q.label() for q in session.queries] == [0, 1] and teacher._session is None
+    status, _, _ = request(teacher.url + "api/undo", {})  # a late Backspace
+    assert status == 409
+    assert teacher.answer("b", 0)[0] == 409
+    assert [entry.label for entry in teacher.model.journal_history()] == [0, 1]
+
+
+def test_clips_being_written_are_not_served(open_session):
+    (open_session._clips_folder() / "a-left.mp4.part").write_bytes(b"half a clip")
+    status, _, _ = request(open_session.url + "clips/a-left.mp4.part")
+    assert status == 404
+
+
+# several annotators --------------------------------------------------------------------------------------------------
+def test_links_carry_secret_tokens_printed_once_and_a_loaded_teacher_makes_new_ones(serve, capsys):
+    teacher = serve(annotators=["ana", "ben"])
+    out = capsys.readouterr().out
+    assert set(teacher.links) == {"ana", "ben"} and len(set(teacher.links.values())) == 2
+    assert all(link.startswith(teacher.url + "?token=") and link in out for link in teacher.links.values())
+    teacher._start_server()  # attached again (a new env): the same server, the links are not printed again
+    assert capsys.readouterr().out == ""
+    loaded = pickle.loads(pickle.dumps(teacher))
+    assert loaded.annotators == ["ana", "ben"] and loaded._server is None
+    assert not set(loaded._tokens.values()) & set(teacher._tokens.values())  # tokens are never saved
+    older = WebTeacher.__new__(WebTeacher)  # as pickle makes a teacher saved before several annotators existed
+    older.__setstate__(_settings_of_an_old_teacher())
+    assert older.annotators is None and older.known_answer_rate == 0 and older.links == {}
+
+
+def _settings_of_an_old_teacher() -> dict:
+    """What a model saved before several annotators existed holds of its WebTeacher."""
+    return dict(port=0, host="127.0.0.1", timeout=None, width=320, height=240, clip_dir=None, reminder_interval=60.0,
+                camera=None)  # fmt: skip
+
+
+def test_serving_beyond_localhost_with_annotators(serve):
+    teacher = serve(annotators=["ana"], host="0.0.0.0")
+    assert teacher.url == f"http://{socket.gethostname()}:{teacher.port}/"
+    status, _, _ = request(f"http://127.0.0.1:{teacher.port}/api/state")
+    assert status == 401
+    status, _, body = request(f"http://127.0.0.1:{teacher.port}/api/state?token=" + teacher.links["ana"].split("token=")[1])
+    assert status == 200 and json.loads(body)["you"] == "ana"
+
+
+def test_annotators_refusals_are_http_errors_that_record_nothing(serve, tmp_path):
+    teacher = serve(annotators=["ana", "ben"])
+    run, pairs = Run(tmp_path / "preferences.jsonl"), make_pairs(4)
+    thread, result = ask_in_thread(teacher, pairs, run.context())
+    ana, ben = Page(teacher, "ana"), Page(teacher, "ben")
+    first_of_ana, first_of_ben = ana.shown(), ben.shown()
+    assert first_of_ana and first_of_ben and first_of_ana != first_of_ben  # nobody is shown a query another answers
+
+    def nothing_recorded() -> None:
+        assert run.journal.read() == [] and teacher.agreement()["ana"]["answers"] == 0
+        assert ana.shown() == first_of_ana and ben.shown() == first_of_ben
+
+    # without a valid token: every API route and the clips
+    clip = teacher.url + ana.state()["query"]["left"].lstrip("/")
+    for url, body, headers in (
+        (teacher.url + "api/state", None, {}),
+        (teacher.url + "api/state", None, {"X-Annotator-Token": "guess"}),
+        (teacher.url + "api/state?token=", None, {}),
+        (teacher.url + "api/answer", {"id": first_of_ana, "label": 1}, {}),
+        (teacher.url + "api/undo", {}, {"X-Annotator-Token": "guess"}),
+        (clip, None, {}),
+    ):
+        status, _, reply = request(url, body, headers)
+        assert status == 401 and "token" in json.loads(reply)["error"], url
+    assert request(clip + "?token=" + ana.headers["X-Annotator-Token"])[0] == 200
+    status, _, page = request(teacher.url)  # the page itself holds nothing: it asks for the token
+    assert status == 200 and b"X-Annotator-Token" in page
+    # malformed, a label outside {0, 0.5, 1, null}, another's query, an unknown one
+    for body in (b"{", b"[1, 2]", {"label": 1}, {"id": first_of_ana}):
+        assert request(teacher.url + "api/answer", body, ana.headers)[0] == 400, body
+    status, _, reply = request(teacher.url + "api/answer", {"id": first_of_ana, "label": 1, "pad": "x" * 70_000}, ana.headers)
+    assert status == 413 and json.loads(reply)["error"]
+    for label in (0.7, "left", True, -1, 2):
+        assert ana.answer(first_of_ana, label) == 400, label
+    assert ana.answer(first_of_ben, 1) == 403  # handed to ben, not to ana
+    assert ana.answer("nonexistent", 1) == 404
+    assert ana.undo() == 409  # nothing to undo yet
+    nothing_recorded()
+    # replays: the same answer again, and a query that has its answer
+    assert ana.answer(first_of_ana, 1) == 200
+    answered = teacher._session.find(first_of_ana).pair
+    assert ana.answer(first_of_ana, 1) == 409 and ana.answer(first_of_ana, 0) == 409
+    assert ben.answer(first_of_ana, 0) == 409
+    assert len(run.journal.read()) == 1 and teacher.agreement()["ben"]["answers"] == 0
+
+    while ana.state()["session"] is not None:
+        for page in (ana, ben):
+            if (shown := page.shown()) is not None:
+                assert page.answer(shown, 0.5) == 200
+    labels = finish(thread, result)
+    np.testing.assert_array_equal(labels, [1 if query_id(inputs) == answered else 0.5 for inputs in pairs.inputs])
+    entries = run.journal.read()
+    assert len(entries) == 4 and len({entry.id for entry in entries}) == 4  # no query answered twice
+    assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time > 0 for entry in entries)
+    assert ana.state()["session"] is None and ana.answer(first_of_ben, 1) == 409  # the session is over
+
+
+def test_two_answers_per_query_are_averaged_and_undo_takes_back_ones_own(serve, tmp_path):
+    teacher = serve(annotators=["ana", "ben"], answers_per_query=2, report_path=tmp_path / "report.json")
+    run, pairs = Run(tmp_path / "preferences.jsonl"), make_pairs(3)
+    thread, result = ask_in_thread(teacher, pairs, run.context())
+    ana, ben = Page(teacher, "ana"), Page(teacher, "ben")
+    ids = [query.id for query in teacher._session.queries]
+    assert ana.shown() == ids[0] and ben.shown() == ids[0]  # both answer the first query
+    assert ana.answer(ids[0], 1) == 200 and ben.answer(ids[0], 0) == 200  # they disagree: μ = 0.5
+    assert ana.answer(ids[1], 1) == 200
+    assert ana.state()["team"][0]["session"] == 2
+    assert ana.undo() == 200 and ana.shown() == ids[1]  # ana takes hers back: shown to her again
+    assert ben.undo() == 200 and ben.shown() == ids[0]  # ben's own last answer, not ana's
+    assert ben.answer(ids[0], 0) == 200
+    assert ana.answer(ids[1], 0) == 200 and ben.answer(ids[1], None) == 200  # a skip: μ is ana's
+    assert ana.answer(ids[2], 1) == 200 and ben.answer(ids[2], 1) == 200
+    np.testing.assert_array_equal(finish(thread, result), [0.5, 0, 1])
+    entries = run.journal.read()  # each answer its own entry, the undone ones removed
+    pair = [query_id(inputs) for inputs in pairs.inputs]
+    assert [(entry.id, entry.annotator, _label(entry)) for entry in entries] == [
+        (pair[0], "ana", 1), (pair[0], "ben", 0), (pair[1], "ana", 0), (pair[1], "ben", "skip"), (pair[2], "ana", 1),
+        (pair[2], "ben", 1),
+    ]  # fmt: skip
+    agreement = teacher.agreement()
+    assert agreement["ana"]["pairwise_agreement"] == 0.5 and agreement["ana"]["compared_answers"] == 2
+    assert agreement["ben"]["answers"] == 3 and agreement["ben"]["skips"] == 1
+    assert run.logged["annotators/ana/pairwise_agreement"] == 0.5 and run.logged["annotators/ben/answers"] == 3
+    assert json.loads((tmp_path / "report.json").read_text())["annotators"] == agreement
+
+
+def test_a_careless_annotator_is_flagged_by_known_answers(serve, tmp_path, monkeypatch, capsys):
+    """ana answers from the true reward, ben at random: the known-answer questions tell them apart."""
+    monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
+    teacher = serve(annotators=["ana", "ben"], known_answer_rate=0.4, seed=0, report_path=tmp_path / "report.json")
+    run, pairs = Run(tmp_path / "preferences.jsonl"), make_pairs(60)
+    thread, result = ask_in_thread(teacher, pairs, run.context())
+    pages, coin = [Page(teacher, "ana"), Page(teacher, "ben")], np.random.default_rng(1)
+    while thread.is_alive():
+        for page in pages:
+            shown = page.shown()
+            if shown is not None and teacher._session is not None:
+                careful = true_answer(pairs, teacher._session.find(shown).inputs)
+                assert page.answer(shown, careful if page.name == "ana" else float(coin.integers(2))) == 200
+    labels = finish(thread, result)
+    entries = run.journal.read()
+    assert len(entries) == 60  # the known-answer questions are extra: neither journaled nor given to the model
+    for entry in entries:
+        if entry.annotator == "ana":
+            label = labels[[query_id(inputs) for inputs in pairs.inputs].index(entry.id)]
+            assert label == true_answer(pairs, entry.inputs)
+    report = json.loads((tmp_path / "report.json").read_text())["annotators"]
+    ana, ben = report["ana"], report["ben"]
+    assert ana["known_answers"] >= 8 and ana["known_answer_agreement"] == 1.0 and not ana["flagged"]
+    assert ben["known_answers"] >= 8 and ben["known_answer_agreement"] < 0.7 and ben["flagged"]
+    assert ana["answers"] + ben["answers"] == 60 + ana["known_answers"] + ben["known_answers"]
+    assert run.logged["annotators/ben/known_answer_agreement"] == ben["known_answer_agreement"]
+    assert "ben matched only" in capsys.readouterr().out
+
+
+def test_instructions_default_to_the_task(serve):
+    assert "walker" in default_instructions("sb3_pride/walker-walk-v0")
+    assert "cheetah" in default_instructions("sb3_pride/cheetah-run-v0")
+    assert "button" in default_instructions("sb3_pride/button-press-v3")
+    assert "door" in default_instructions("sb3_pride/door-open-v3")
+    assert default_instructions("sb3_pride/unknown-task-v0") == default_instructions(None) == GENERIC_INSTRUCTIONS
+    teacher = serve()
+    assert Page(teacher).state()["instructions"] == GENERIC_INSTRUCTIONS  # no env seen yet
+    teacher._env_id = "sb3_pride/walker-walk-v0"  # as attach() sees it
+    assert Page(teacher).state()["instructions"] == default_instructions("sb3_pride/walker-walk-v0")
+    teacher.instructions = "Prefer <b>faster</b> walkers."
+    assert Page(teacher).state()["instructions"] == "Prefer <b>faster</b> walkers."
+
+
+def test_ask_from_a_worker_thread_renders_real_clips(tiny_kwargs, tmp_path):
+    """MuJoCo's GL contexts belong to a thread: the render thread makes them whatever thread calls ask()."""
+    av = pytest.importorskip("av")
+    from sb3_pride.common.queries import sample_segment_pairs
+    from sb3_pride.human.render import egl_available
+
+    skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
+    tiny_kwargs.update(unsupervised_steps=10**6)  # no feedback session of its own
+    teacher = WebTeacher(port=0, width=32, height=24, clip_dir=tmp_path / "clips")
+    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=teacher, seed=0, **tiny_kwargs)
+    try:
+        model.learn(60)
+        pairs = sample_segment_pairs(model.real_buffer, 2, 10, 10, np.random.default_rng(0))
+        thread, result = ask_in_thread(teacher, pairs, Run(tmp_path / "p.jsonl").context())
+        first = teacher.state()["query"]
+        for label in (0, 1):
+            assert teacher.answer(teacher.state()["query"]["id"], label)[0] == 200
+        np.testing.assert_array_equal(finish(thread, result), [0, 1])
+    finally:
+        teacher.close()
+    with av.open(str(tmp_path / "clips" / Path(first["left"]).name)) as container:
+        frames = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
+    assert len(frames) == 10 and frames[0].shape == (24, 32, 3) and frames[0].std() > 5  # a picture, not a blank
+
+
+# in a real browser ---------------------------------------------------------------------------------------------------
+def _chromium():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    skip_unless(os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER), "Debian's chromium and chromium-driver")
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM  # Debian's browser and driver: Selenium downloads nothing
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--autoplay-policy=no-user-gesture-required"):
+        options.add_argument(argument)
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
 
 
 @pytest.mark.slow
 @pytest.mark.browser
 def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path):
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
     from selenium.webdriver.common.keys import Keys
 
     from sb3_pride.human.render import egl_available
 
-    skip_unless(os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER), "Debian's chromium and chromium-driver")
     skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
     journal = tmp_path / "preferences.jsonl"
     teacher = WebTeacher(port=0, width=96, height=64)
@@ -118,11 +471,7 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
     training = threading.Thread(target=lambda: _learn(model, 500, errors), daemon=True)
     training.start()
 
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM  # Debian's browser and driver: Selenium downloads nothing
-    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--autoplay-policy=no-user-gesture-required"):
-        options.add_argument(argument)
-    driver = webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+    driver = _chromium()
     try:
         driver.get(teacher.url)
         body = driver.find_element("tag name", "body")
@@ -153,6 +502,71 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
     assert model.journal_entries == 6
 
 
+@pytest.mark.slow
+@pytest.mark.browser
+def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwargs, tmp_path):
+    """Two browsers, two links: each is shown its own queries, and each answer is journaled with who gave it."""
+    from selenium.webdriver.common.keys import Keys
+
+    from sb3_pride.human.render import egl_available
+
+    skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
+    journal = tmp_path / "preferences.jsonl"
+    teacher = WebTeacher(port=0, width=96, height=64, annotators=["ana", "ben"], instructions="Prefer <b>upright</b> walkers.")
+    tiny_kwargs.update(queries_per_session=4, max_feedback=4, feedback_interval=100, segment_length=10)
+    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=teacher, preference_journal=journal, seed=0, **tiny_kwargs)
+    errors: list[BaseException] = []
+    training = threading.Thread(target=lambda: _learn(model, 300, errors), daemon=True)
+    training.start()
+    drivers = {}
+    try:
+        for name in ("ana", "ben"):
+            drivers[name] = _chromium()
+            drivers[name].get(teacher.links[name])
+        shown = {name: _wait(lambda d=driver: _playing(d)) for name, driver in drivers.items()}
+        assert shown["ana"] != shown["ben"]  # two people, two different queries
+        instructions = drivers["ana"].find_element("id", "instructions")
+        assert instructions.text == "Prefer <b>upright</b> walkers." and not instructions.find_elements("tag name", "b")
+        # ana: left, then undo and right; ben: equal, skip; then whatever is left
+        for name, key in (("ana", Keys.ARROW_LEFT), ("ben", Keys.ARROW_DOWN), ("ana", Keys.BACKSPACE),
+                          ("ana", Keys.ARROW_RIGHT), ("ben", "s")):  # fmt: skip
+            before = _wait(lambda n=name: _playing(drivers[n]) or model.feedback_sessions == 1)
+            drivers[name].find_element("tag name", "body").send_keys(key)
+            _wait(lambda n=name, b=before: _playing(drivers[n]) != b or model.feedback_sessions == 1)
+        while training.is_alive() and model.feedback_sessions == 0:
+            for driver in drivers.values():
+                if _playing(driver):
+                    driver.find_element("tag name", "body").send_keys(Keys.ARROW_LEFT)
+            time.sleep(0.3)
+        team = drivers["ana"].find_element("id", "team").text
+        assert "ana" in team and "ben" in team
+    finally:
+        for driver in drivers.values():
+            driver.quit()
+    training.join(timeout=120)
+    teacher.close()
+    assert not errors, errors
+    assert model.feedback_sessions == 1 and model.feedback_asked == 4
+    entries = PreferenceJournal(journal).read()
+    assert len(entries) == 4 and len({entry.id for entry in entries}) == 4  # no query answered twice
+    assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
+    by_annotator = {name: [_label(e) for e in entries if e.annotator == name] for name in ("ana", "ben")}
+    assert by_annotator["ana"][0] == 1 and by_annotator["ben"][:2] == [0.5, "skip"]  # ana's undo took back her "left"
+
+
+def _label(entry) -> float | str:
+    return "skip" if math.isnan(entry.label) else entry.label
+
+
+def _playing(driver) -> str | None:
+    """The question the page shows, once its left clip is playing."""
+    return driver.execute_script(
+        "const v = document.getElementById('left');"
+        "return v.readyState >= 2 && v.videoWidth > 0 && !document.getElementById('labeling').classList.contains('hidden')"
+        " ? document.body.dataset.query || null : null;"
+    )
+
+
 def _learn(model: PEBBLE, steps: int, errors: list) -> None:
     try:
         model.learn(steps)
@@ -161,16 +575,12 @@ def _learn(model: PEBBLE, steps: int, errors: list) -> None:
 
 
 def _shown_query(driver, teacher: WebTeacher, session: int) -> str | None:
-    """The query the page shows, once it is an open query of ``session`` and its left clip is playing."""
+    """The query the page shows, once it is the query handed to the person in ``session`` and its left clip is playing."""
     state = teacher.state()
-    if state["session"] != session:
+    if state["session"] != session or state["query"] is None:
         return None
-    shown = driver.execute_script(
-        "const v = document.getElementById('left');"
-        "return v.readyState >= 2 && v.videoWidth > 0 ? document.body.dataset.query : null;"
-    )
-    open_ids = [query["id"] for query in state["queries"] if not query["answered"]]
-    return shown if shown in open_ids[:1] else None
+    shown = _playing(driver)
+    return shown if shown == state["query"]["id"] else None
 
 
 def _wait(condition, timeout: float = 60.0):
@@ -181,30 +591,3 @@ def _wait(condition, timeout: float = 60.0):
             return value
         time.sleep(0.05)
     raise AssertionError("timed out waiting for the page")
-
-
-def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session, capsys):
-    teacher = open_session
-    teacher.reminder_interval, teacher.timeout = 0.1, 0.45
-    teacher._wait_for_answers()  # nobody answers: the page was never opened
-    reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
-    assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
-
-
-def test_answers_come_in_order_and_nothing_reaches_a_closed_session(open_session):
-    teacher = open_session
-    status, _, reply = request(teacher.url + "api/answer", {"id": "b", "label": 1})  # "a" comes first
-    assert status == 400 and "in order" in json.loads(reply)["error"]
-    teacher.answer("a", 0)
-    teacher.answer("b", 1)
-    session = teacher._wait_for_answers()  # all answered: the session closes
-    assert [q.label for q in session.queries] == [0, 1] and teacher._session is None
-    status, _, _ = request(teacher.url + "api/undo", {})  # a late Backspace
-    assert status == 400
-    assert [entry.label for entry in teacher.model.journal_history()] == [0, 1]
-
-
-def test_clips_being_written_are_not_served(open_session):
-    (open_session._clips_folder() / "a-left.mp4.part").write_bytes(b"half a clip")
-    status, _, _ = request(open_session.url + "clips/a-left.mp4.part")
-    assert status == 404

@@ -7,7 +7,7 @@ import torch as th
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
 
-QUERY_SELECTIONS = ("uniform", "disagreement", "entropy")
+QUERY_SELECTIONS = ("uniform", "disagreement", "entropy", "kcenter", "kcenter_disagreement", "kcenter_entropy")
 
 
 @dataclass
@@ -117,23 +117,73 @@ def preference_probabilities(member_returns: th.Tensor) -> th.Tensor:
     return th.softmax(member_returns, dim=-1)[..., 1]
 
 
-def select_queries(member_returns: th.Tensor, n_queries: int, method: str) -> np.ndarray:
+def kcenter_greedy(candidates: np.ndarray, centers: np.ndarray, n: int) -> np.ndarray:
+    """
+    Greedy k-center (Sener & Savarese, ICLR 2018; B-Pref's ``KCenterGreedy``): ``n`` candidates picked one at a time,
+    each the one farthest (Euclidean) from its nearest center, the centers being ``centers`` and the candidates picked
+    before it. Queries so chosen cover the space of segments instead of crowding where the reward model is unsure.
+
+    :param candidates: (n_candidates, dim) features
+    :param centers: (n_centers, dim) features of what is covered already (the labelled pairs); may be empty
+    :param n: how many to pick, ``<= n_candidates``
+    :return: the picked indices, in the order picked
+    """
+    points = th.as_tensor(candidates, dtype=th.float32)
+    if len(centers):
+        nearest = th.cdist(points, th.as_tensor(centers, dtype=th.float32)).min(dim=1).values
+    else:
+        nearest = th.full((len(points),), float("inf"))
+    picked = []
+    for _ in range(n):
+        # without centers, the first pick is the first candidate (they are random already)
+        index = int(th.argmax(nearest)) if th.isfinite(nearest).any() or picked else 0
+        picked.append(index)
+        nearest = th.minimum(nearest, th.cdist(points, points[index : index + 1]).squeeze(1))
+        nearest[index] = -1.0  # never picked twice
+    return np.array(picked, dtype=np.int64)
+
+
+def pair_features(observations: np.ndarray) -> np.ndarray:
+    """A pair's k-center features, as in B-Pref: the observations of both segments, flattened: (n, 2, k, d) -> (n, 2kd)."""
+    return observations.reshape(len(observations), -1)
+
+
+def select_queries(
+    member_returns: th.Tensor,
+    n_queries: int,
+    method: str,
+    features: np.ndarray | None = None,
+    labeled_features: np.ndarray | None = None,
+) -> np.ndarray:
     """
     Indices of the ``n_queries`` candidate pairs to ask about.
 
     :param member_returns: (members, n_candidates, 2) predicted segment returns of each ensemble member
     :param method: "uniform" (the first ``n_queries``, candidates being random already), "disagreement"
         (largest std over members of P[σ1 ≻ σ0]) or "entropy" (largest mean over members of the entropy of
-        P[σ1 ≻ σ0]), as B-Pref's ``feed_type`` 0, 1 and 2
+        P[σ1 ≻ σ0]), as B-Pref's ``feed_type`` 0, 1 and 2; "kcenter" (greedy k-center on ``features``, the labelled
+        pairs' ``labeled_features`` counting as centers), "kcenter_disagreement" and "kcenter_entropy" (k-center
+        among the half of the candidates with the largest disagreement or entropy), B-Pref's ``feed_type`` 3, 4, 5
+    :param features: (n_candidates, dim) the candidates' features (``pair_features``), for the k-center methods
+    :param labeled_features: (n_labeled, dim) the labelled pairs' features, for the k-center methods
     """
     if method == "uniform":
         return np.arange(n_queries)
+    if method not in QUERY_SELECTIONS:
+        raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {method!r}")
+    if method.startswith("kcenter"):
+        if features is None:
+            raise ValueError(f"query_selection={method!r} needs the candidates' features")
+        centers = np.zeros((0, features.shape[1])) if labeled_features is None else labeled_features
+        pool = np.arange(len(features))
+        if method != "kcenter":  # B-Pref: the most uncertain half of the candidates, then k-center among them
+            scored = select_queries(member_returns, max(n_queries, len(pool) // 2), method.removeprefix("kcenter_"))
+            pool = np.sort(scored)
+        return pool[kcenter_greedy(features[pool], centers, n_queries)]
     p = preference_probabilities(member_returns)
     if method == "disagreement":
         score = p.std(dim=0) if len(p) > 1 else th.zeros(p.shape[1])
-    elif method == "entropy":
+    else:
         eps = 1e-8
         score = -(p * th.log(p + eps) + (1 - p) * th.log(1 - p + eps)).mean(dim=0)
-    else:
-        raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {method!r}")
     return th.topk(score, k=n_queries).indices.cpu().numpy()

@@ -3,7 +3,7 @@
 import itertools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch as th
@@ -118,12 +118,13 @@ class RobustLabels:
     beta_min: float = 0.1
     beta_decay_epochs: int = 100
     flip_probability: float = 0.001
-    epochs: int = 0
-    max_divergence: float | None = None
-    divergence_variance: float = 0.0
+    # the running values (not settings)
+    epochs: int = field(default=0, init=False)
+    max_divergence: float | None = field(default=None, init=False)
+    divergence_variance: float = field(default=0.0, init=False)
     #: how many labels the last epoch trusted and flipped
-    trusted: int = 0
-    flipped: int = 0
+    trusted: int = field(default=0, init=False)
+    flipped: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         for name in ("alpha", "beta_init", "beta_min"):
@@ -160,6 +161,41 @@ class RobustLabels:
         self.epochs += 1
         self.trusted, self.flipped = int(trusted.sum()), int(flipped.sum())
         return trusted, flipped
+
+
+@dataclass
+class PseudoLabels:
+    """
+    SURF's semi-supervised reward learning (Park et al., ICLR 2022, §4.1): beside each minibatch of labelled pairs,
+    ``ratio`` × as many unlabelled pairs drawn from the replay buffer; each member labels them itself, ŷ = 1[P̂_m > 0.5],
+    and learns from those it is confident about, max(P̂_m, 1 − P̂_m) > ``threshold``, with the Bradley–Terry loss
+    weighted by ``weight`` (on cropped segments when ``temporal_crop`` is on, as SURF does). ``unlabeled_per_label``
+    unlabelled pairs are drawn per label before each feedback session's training (at most ``max_unlabeled``).
+
+    SURF's walker-walk settings: threshold 0.99, ratio 4, weight 1, 100 unlabelled pairs per label (10 on Meta-World).
+
+    :param threshold: τ, the confidence above which a member's pseudo-label is used
+    :param ratio: μ, unlabelled pairs per labelled pair in a minibatch
+    :param weight: λ, the weight of the unlabelled loss
+    :param unlabeled_per_label: unlabelled pairs drawn per label
+    :param max_unlabeled: the most unlabelled pairs drawn for one feedback session
+    """
+
+    threshold: float = 0.99
+    ratio: int = 4
+    weight: float = 1.0
+    unlabeled_per_label: int = 100
+    max_unlabeled: int = 10_000
+
+    def __post_init__(self) -> None:
+        if isinstance(self.threshold, bool) or not isinstance(self.threshold, (int, float)) or not 0.5 <= self.threshold < 1:
+            raise ValueError(f"pseudo_labels: threshold must be in [0.5, 1), got {self.threshold!r}")
+        if isinstance(self.weight, bool) or not isinstance(self.weight, (int, float)) or not 0 < self.weight < math.inf:
+            raise ValueError(f"pseudo_labels: weight must be a finite number > 0, got {self.weight!r}")
+        for name in ("ratio", "unlabeled_per_label", "max_unlabeled"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"pseudo_labels: {name} must be an integer >= 1, got {value!r}")
 
 
 class PreferenceDataset:
@@ -290,6 +326,37 @@ class RewardEnsemble(nn.Module):
         ]
         return th.cat(chunks, dim=1).cpu()
 
+    def pseudo_label_loss(
+        self,
+        unlabeled: th.Tensor,
+        n_labeled: int,
+        pseudo_labels: PseudoLabels,
+        rng: np.random.Generator,
+        temporal_crop: tuple[int, int] | None,
+    ) -> th.Tensor:
+        """
+        SURF's unlabelled loss for one minibatch (summed over members, as the labelled one): ``ratio`` × ``n_labeled``
+        unlabelled pairs per member, each member's own confident pseudo-labels ŷ = 1[P̂_m > 0.5] where
+        max(P̂_m, 1 − P̂_m) > τ, the Bradley–Terry loss on them (cropped when cropping) times λ.
+        """
+        n = pseudo_labels.ratio * n_labeled
+        idx = th.as_tensor(rng.integers(0, len(unlabeled), size=(self.n_members, n)), device=self.device)
+        batch = unlabeled[idx]  # (members, n, 2, k, d)
+        with th.no_grad():
+            whole = self.members(batch.reshape(self.n_members, -1, self.input_dim)).reshape(*batch.shape[:-1])
+            p = th.softmax(whole.sum(dim=-1), dim=-1)[..., 1]  # (members, n): each member's own P̂
+            targets = (p > 0.5).float()
+            confident = (th.maximum(p, 1 - p) > pseudo_labels.threshold).float()
+        if temporal_crop is not None:
+            batch, mask, _ = crop_pairs(batch, targets, temporal_crop, rng)
+        rewards = self.members(batch.reshape(self.n_members, -1, self.input_dim)).reshape(*batch.shape[:-1])
+        if temporal_crop is not None:
+            rewards = rewards * mask
+        log_p = F.log_softmax(rewards.sum(dim=-1), dim=-1)
+        per_pair = -((1.0 - targets) * log_p[..., 0] + targets * log_p[..., 1])
+        # mean over the drawn pairs, the unconfident ones counting as 0 (SURF's masked mean), summed over members
+        return pseudo_labels.weight * (per_pair * confident).mean(dim=1).sum()
+
     @th.no_grad()
     def label_divergence(self, inputs: th.Tensor, labels: th.Tensor, batch_size: int = 256) -> np.ndarray:
         """
@@ -312,6 +379,8 @@ class RewardEnsemble(nn.Module):
         rng: np.random.Generator | None = None,
         temporal_crop: tuple[int, int] | None = None,
         robust_labels: RobustLabels | None = None,
+        unlabeled: np.ndarray | None = None,
+        pseudo_labels: PseudoLabels | None = None,
     ) -> tuple[float, float, int]:
         """
         Train on D for up to ``max_epochs`` epochs, each member on its own shuffling of D (the loss is summed
@@ -324,6 +393,8 @@ class RewardEnsemble(nn.Module):
             segment. None: whole segments (PEBBLE)
         :param robust_labels: RIME's selection of the labels each epoch trains on (trusted as given, confidently
             wrong ones flipped, the rest left out); its running values are updated. None: every label as given
+        :param unlabeled: (n_u, 2, k, input_dim) unlabelled pairs, for ``pseudo_labels``
+        :param pseudo_labels: SURF's semi-supervised loss on ``unlabeled`` (``PseudoLabels``). None: labels only
         :return: (last epoch's mean loss per member, its accuracy, epochs run)
         """
         rng = rng if rng is not None else np.random.default_rng()
@@ -333,6 +404,8 @@ class RewardEnsemble(nn.Module):
         n = len(labels)
         loss_value, accuracy, epoch = float("nan"), 0.0, 0
         all_labels = labels
+        semi_supervised = pseudo_labels is not None and unlabeled is not None and len(unlabeled) > 0
+        unlabeled_t = th.as_tensor(unlabeled, device=self.device) if semi_supervised else None
         for epoch in range(1, max_epochs + 1):  # noqa: B007 (returned: the epochs run)
             used = np.arange(n)
             if robust_labels is not None:
@@ -353,6 +426,8 @@ class RewardEnsemble(nn.Module):
                 returns = rewards.sum(dim=-1)  # (members, b, 2): R̂0, R̂1 (Eq. 1)
                 # Eq. 2 for each member, summed over members
                 loss = preference_loss(returns, batch_labels) * self.n_members
+                if semi_supervised:
+                    loss = loss + self.pseudo_label_loss(unlabeled_t, idx.shape[1], pseudo_labels, rng, temporal_crop)
                 self.optimizer.zero_grad()
                 loss.backward()
                 self.optimizer.step()

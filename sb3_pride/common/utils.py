@@ -49,3 +49,21 @@ def merge_kwargs(base: dict[str, Any], overrides: dict[str, Any]) -> dict[str, A
         else:
             merged[key] = value
     return merged
+
+
+def make_option(name: str, value: Any, settings_class: Callable[..., Any]) -> Any:
+    """
+    An option given as ``False`` (off: None), ``True`` (``settings_class()``, the published settings) or a dict of
+    ``settings_class``'s settings; anything else, or a setting it does not have, raises ``ValueError`` naming ``name``.
+    """
+    if isinstance(value, (bool, np.bool_)):
+        return settings_class() if value else None
+    if not isinstance(value, dict):
+        raise ValueError(f"{name} must be True, False or a dict of {settings_class.__name__}'s settings, got {value!r}")
+    import dataclasses
+
+    known = {field.name for field in dataclasses.fields(settings_class) if field.init}
+    unknown = sorted(set(value) - known)
+    if unknown:
+        raise ValueError(f"{name}: unknown settings {unknown}; {settings_class.__name__} takes {sorted(known)}")
+    return settings_class(**value)

@@ -1,5 +1,6 @@
 """
-Human feedback: ``WebTeacher`` asks a person in a browser which of two segments is better, while the agent trains.
+Human feedback: ``WebTeacher`` asks people in a browser (one on this machine, or several annotators with secret links)
+which of two segments is better, while the agent trains.
 Needs the ``[human]`` extra (Flask for the page, PyAV for the clips) and headless MuJoCo rendering (``MUJOCO_GL=egl``).
 """
 

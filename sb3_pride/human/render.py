@@ -89,6 +89,15 @@ class SegmentRenderer:
         use_headless_gl()
         self.env_id, self.width, self.height = env_id, width, height
         self.env = gym.make(env_id)
+        try:
+            self._set_up(camera)
+        except BaseException:
+            # freed here, in the thread that made them: the GL contexts a reset may have made (quadruped-escape's
+            # terrain) cannot be freed from another thread at exit
+            self.env.close()
+            raise
+
+    def _set_up(self, camera: str | int | None) -> None:
         self.model, self.data = mujoco_handles(self.env)
         self.fps = frame_rate(self.env)
         #: the model fields a reset of this task re-draws, recorded with every state
@@ -108,7 +117,7 @@ class SegmentRenderer:
             raise
         except Exception as error:
             raise ValueError(
-                f"cannot render {env_id} headless ({type(error).__name__}: {error}); on a machine without a display "
+                f"cannot render {self.env_id} headless ({type(error).__name__}: {error}); on a machine without a display "
                 "set MUJOCO_GL=egl before the first env is made (and install Mesa's EGL: libegl1 libgl1-mesa-dri)"
             ) from error
 

@@ -1,27 +1,41 @@
 """
-``WebTeacher``: a person labels segment pairs in a browser while the agent trains.
+``WebTeacher``: people label segment pairs in a browser while the agent trains.
 
 At each feedback session the run renders every queried pair as two H.264 clips (re-rendered from the simulator
-states recorded beside the transitions), serves them on a local web page and waits until every query is answered.
-Answers go to the run's preference journal the moment they are given (``PEBBLE(preference_journal=...)``), so a
-run killed mid-session loses none. ``WebTeacher`` is an ``InteractiveTeacher``: the model gives it its env and replay
-buffer when it is attached, and each session's pairs with a ``FeedbackContext``; never the model itself.
+states recorded beside the transitions), serves them on a web page and waits until every query has its answers.
+One person on this machine needs nothing more; several annotators each open a secret link, are handed queries no one
+else is answering (or, with ``answers_per_query=k``, the same query as ``k - 1`` others), and may be checked with
+known-answer questions mixed into what they see. Answers go to the run's preference journal the moment they are given
+(``PEBBLE(preference_journal=...)``), each with who gave it and when, so a run killed mid-session loses none.
+``WebTeacher`` is an ``InteractiveTeacher``: the model gives it its env and replay buffer when it is attached, and each
+session's pairs with a ``FeedbackContext``; never the model itself.
 """
 
 import atexit
+import ipaddress
+import json
+import math
+import queue
+import random
+import re
+import secrets
 import shutil
+import socket
 import tempfile
 import threading
 import time
 import uuid
+from collections import Counter
+from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
-from sb3_pride.common.journal import JournalEntry
+from sb3_pride.common.journal import JournalEntry, atomic_write_path, query_id
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.render_states import enable_render_states
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, register_teacher
@@ -33,47 +47,222 @@ if TYPE_CHECKING:
 
 #: the answers the page may send: μ = P[right segment preferred]; None is a skip
 ALLOWED_LABELS = (0.0, 0.5, 1.0, None)
+#: the addresses that only this machine reaches: the one place a page may be served without annotators' tokens
+LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
+#: how an annotator is named: it becomes part of logger keys (``annotators/<name>/...``) and of the report
+ANNOTATOR_NAME = re.compile(r"[A-Za-z0-9_.-]{1,40}")
+#: the name of the one person of ``annotators=None`` in the agreement report and the logger keys
+ANONYMOUS = "anonymous"
+#: questions handed to an annotator at a time: the one shown and the next, whose clips the page preloads
+QUEUE_LENGTH = 2
+#: seconds after which the questions handed to an annotator whose page stopped asking for the state (it asks every
+#: second; a browser tab hidden for minutes, once a minute) are handed to others
+RELEASE_AFTER = 90.0
+#: known-answer questions kept to draw from (the oldest are dropped beyond it)
+KNOWN_POOL_SIZE = 1000
+#: an annotator is flagged when fewer than this share of their known-answer questions agree with the known answer...
+FLAG_BELOW = 0.7
+#: ...over at least this many of them
+FLAG_MIN_KNOWN = 8
+
+#: what the page asks for on the bundled tasks (by task name: the env id without its namespace and version)
+TASK_INSTRUCTIONS: dict[str, str] = {
+    "walker-walk": "Prefer the walker that moves forward faster while staying upright (torso high, not falling).",
+    "walker-run": "Prefer the walker that runs forward faster while staying upright (torso high, not falling).",
+    "walker-stand": "Prefer the walker that stands upright with its torso high and steady.",
+    "cheetah-run": "Prefer the cheetah that runs forward (to the right) faster; flipping over or standing still is worse.",
+    "hopper-hop": "Prefer the hopper that hops forward faster while staying upright.",
+    "hopper-stand": "Prefer the hopper that stands upright with its torso high.",
+    "humanoid-stand": "Prefer the humanoid that stands upright with its head high.",
+    "humanoid-walk": "Prefer the humanoid that walks forward while staying upright.",
+    "humanoid-run": "Prefer the humanoid that runs forward faster while staying upright.",
+    "quadruped-walk": "Prefer the quadruped that walks forward faster while staying upright.",
+    "quadruped-run": "Prefer the quadruped that runs forward faster while staying upright.",
+    "cartpole-swingup": "Prefer the cart-pole whose pole is swung up and kept balanced upright, the cart near the centre.",
+    "cartpole-balance": "Prefer the cart-pole whose pole stays balanced upright, the cart near the centre.",
+    "pendulum-swingup": "Prefer the pendulum that is swung up and kept pointing straight up.",
+    "acrobot-swingup": "Prefer the acrobot whose tip is swung up higher and kept there.",
+    "reacher-easy": "Prefer the arm whose fingertip reaches the target sooner and stays on it.",
+    "reacher-hard": "Prefer the arm whose fingertip reaches the target sooner and stays on it.",
+    "finger-spin": "Prefer the finger that spins the hinged body faster.",
+    "ball_in_cup-catch": "Prefer the segment in which the ball is swung into the cup and stays there.",
+    "point_mass-easy": "Prefer the point mass that moves to the target and stays on it.",
+    "button-press": "Prefer the robot arm that presses the button further in (reaching it first, then pushing straight).",
+    "door-open": "Prefer the robot arm that opens the door wider (grabbing the handle and pulling the door round).",
+    "drawer-open": "Prefer the robot arm that pulls the drawer further open (hooking the handle first).",
+    "window-open": "Prefer the robot arm that slides the window further open (pushing its handle sideways).",
+    "sweep-into": "Prefer the robot arm that sweeps the puck closer to the hole, and into it.",
+    "hammer": "Prefer the robot arm that grasps the hammer and drives the nail further in.",
+}
+#: what the page asks for on any other task
+GENERIC_INSTRUCTIONS = (
+    "Prefer the segment in which the agent does its task better: more progress toward the goal, fewer falls or failures."
+)
 
 
-@dataclass
+def default_instructions(env_id: str | None) -> str:
+    """
+    The instructions shown for ``env_id`` when none are given: the task's sentence of ``TASK_INSTRUCTIONS`` (matched
+    by the id's task name, e.g. ``"sb3_pride/walker-walk-v0"`` -> ``"walker-walk"``), else ``GENERIC_INSTRUCTIONS``.
+    """
+    if env_id is None:
+        return GENERIC_INSTRUCTIONS
+    task = re.sub(r"-v\d+$", "", env_id.rsplit("/", 1)[-1])
+    return TASK_INSTRUCTIONS.get(task, GENERIC_INSTRUCTIONS)
+
+
+def is_local(host: str) -> bool:
+    """Whether ``host`` is reached from this machine only (a loopback address or ``localhost``)."""
+    if host in LOCAL_HOSTS:
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+@dataclass(eq=False)
 class _Query:
+    """A question on the page: one of the model's queries, or a known-answer question (``known`` set)."""
+
     id: str
     inputs: np.ndarray
     clips: tuple[str, str]
-    label: float | None = None  # NaN: skipped
-    answered: bool = False
-    ready: bool = False  # its clips are written: the page may show it
+    known: float | None = None  # a known-answer question: the answer it is checked against
+    ready: bool = False  # its clips are written: it may be handed out
+    answers: dict[str, float] = field(default_factory=dict)  # annotator -> μ (NaN: skipped)
+    holders: set[str] = field(default_factory=set)  # annotators it is handed to who have not answered it yet
+    pair: str = ""  # the journal's id of its inputs (query_id)
 
-
-@dataclass
-class _Session:
-    number: int
-    queries: list[_Query]
-    asked_before: int
-    record: Any  # FeedbackContext.record / .retract: the run's journal
-    retract: Any
-    answer_order: list[str] = field(default_factory=list)
+    def __post_init__(self) -> None:
+        if not self.pair:
+            self.pair = query_id(self.inputs)
 
     @property
-    def n_answered(self) -> int:
-        return len(self.answer_order)
+    def taken(self) -> int:
+        """The annotators who answered it or are answering it."""
+        return len(self.answers) + len(self.holders)
 
-    def unanswered(self) -> list[_Query]:
-        return [query for query in self.queries if not query.answered]
+    def label(self) -> float:
+        """μ for the model: the mean of its answers that are not skips (NaN when all are, or when it has none)."""
+        given = [value for value in self.answers.values() if not math.isnan(value)]
+        return float(np.mean(given)) if given else math.nan
+
+
+@dataclass(eq=False)
+class _Answer:
+    """One answer of an annotator (the model's query or a known-answer question), kept for the agreement report."""
+
+    annotator: str
+    pair: str
+    label: float
+    known: float | None
+
+
+@dataclass(eq=False)
+class _Known:
+    """A pair whose answer is known, with its clips: the stuff of known-answer questions."""
+
+    pair: str
+    inputs: np.ndarray
+    clips: tuple[str, str]  # the clip files
+    answer: float
+    source: str  # "true reward" or "majority"
+
+
+@dataclass(eq=False)
+class _Session:
+    number: int
+    queries: list[_Query]  # the model's queries, in the order of its pairs
+    asked_before: int
+    context: FeedbackContext
+    known: dict[str, _Query] = field(default_factory=dict)  # known-answer questions handed out, by id
+    queues: dict[str, list[_Query]] = field(default_factory=dict)  # annotator -> questions handed to them, shown first
+    history: dict[str, list[tuple[_Query, _Answer]]] = field(default_factory=dict)  # annotator -> answers, oldest first
+    known_shown: dict[str, set[str]] = field(default_factory=dict)  # annotator -> pairs shown as known-answer questions
+    cancelled: bool = False
+
+    def __post_init__(self) -> None:
+        self.by_id = {query.id: query for query in self.queries}
+        self.by_pair = {query.pair: query for query in self.queries}
+
+    def find(self, question_id: str) -> _Query | None:
+        return self.by_id.get(question_id) or self.known.get(question_id)
+
+    def open(self, answers_per_query: int) -> list[_Query]:
+        """The model's queries that still lack answers."""
+        return [query for query in self.queries if len(query.answers) < answers_per_query]
+
+
+class _RenderThread:
+    """
+    The one thread that does all of a teacher's MuJoCo work: an OpenGL (EGL) context belongs to the thread that made
+    it, and ``ask()`` may be called from any thread. Started on first use; a daemon, so it never holds up an exit.
+    """
+
+    def __init__(self) -> None:
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread: threading.Thread | None = None
+        self._lock = threading.Lock()
+
+    def submit(self, function: Callable[..., Any], *args: Any, **kwargs: Any) -> Future:
+        future: Future = Future()
+        with self._lock:
+            if self._thread is None:
+                self._thread = threading.Thread(target=self._loop, name="WebTeacher-render", daemon=True)
+                self._thread.start()
+            self._jobs.put((future, function, args, kwargs))
+        return future
+
+    def call(self, function: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        return self.submit(function, *args, **kwargs).result()
+
+    def stop(self) -> None:
+        with self._lock:
+            if self._thread is not None:
+                self._jobs.put(None)
+                self._thread = None
+
+    def _loop(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            future, function, args, kwargs = job
+            if not future.set_running_or_notify_cancel():
+                continue
+            try:
+                future.set_result(function(*args, **kwargs))
+            except BaseException as error:  # handed to the waiting thread
+                future.set_exception(error)
 
 
 class WebTeacher(InteractiveTeacher):
     """
-    An ``InteractiveTeacher`` that asks a person, on a local web page (``http://host:port/``), which of two segments is better.
+    An ``InteractiveTeacher`` that asks people, on a web page (``http://host:port/``), which of two segments is better.
 
     The page plays both segments of a pair side by side as looping clips that restart together, with a playback
-    speed control and buttons; keys: ArrowLeft = left preferred (μ = 0), ArrowRight = right preferred (μ = 1),
-    ArrowDown = equally good (μ = 0.5), s = skip, Backspace = undo the last answer of this session. Everything is
-    served locally (no internet needed). Use it as ``PEBBLE(..., teacher=WebTeacher(port=8000))`` or
-    ``teacher="web"``; needs the ``[human]`` extra and an env that can be re-rendered (every ``sb3_pride/...`` env).
+    speed control, buttons and the task's instructions; keys: ArrowLeft = left preferred (μ = 0), ArrowRight = right
+    preferred (μ = 1), ArrowDown = equally good (μ = 0.5), s = skip, Backspace = undo your last answer of this
+    session. Everything is served by the training process (no internet needed). Use it as
+    ``PEBBLE(..., teacher=WebTeacher(port=8000))`` or ``teacher="web"``; needs the ``[human]`` extra and an env that can
+    be re-rendered (every ``sb3_pride/...`` env).
+
+    Several annotators: ``WebTeacher(annotators=["ana", "ben"])`` gives each a secret token; ``links`` (printed when
+    the server starts) maps each name to the URL that carries it, and every request of the page must carry one. Each
+    open query is handed to one annotator at a time (to ``answers_per_query`` different ones in all), and the model is
+    given the mean μ of a query's answers that are not skips. Each answer is journaled with its annotator and time. The
+    tokens live as long as the teacher: a saved model keeps the settings, and a loaded one makes new tokens (new links,
+    printed again; the old ones stop working).
+
+    Known-answer questions (``known_answer_rate > 0``) are pairs whose answer is known, shown again as extra
+    questions that only measure the annotator (their answers are neither journaled nor given to the model): pairs
+    whose true segment returns differ by at least ``known_answer_margin × return_scale`` (the pairs' own true rewards;
+    the answer is the higher return), and queries on which at least two annotators formed a majority for left or
+    right. ``agreement()`` reports, per annotator, the share of known answers they matched and how often they agreed
+    with the others on the pairs several answered; it is shown on the page, logged (``annotators/<name>/...``) and
+    written to ``report_path`` after every feedback session.
 
     :param port: the TCP port of the page (0: any free port, read it back from ``.port``)
-    :param host: the address to bind: 127.0.0.1 (this machine only; use ssh port forwarding from another one)
+    :param host: the address to bind: 127.0.0.1 (this machine only; use ssh port forwarding from another one), or
+        e.g. 0.0.0.0 (every interface: needs ``annotators``)
     :param timeout: seconds to wait for a session's answers; the rest are then skipped (asked, not labeled).
         None: wait as long as it takes
     :param width: clip width in pixels
@@ -82,6 +271,18 @@ class WebTeacher(InteractiveTeacher):
     :param reminder_interval: seconds between console reminders (with the URL) while answers are awaited
     :param camera: the MuJoCo camera of the clips, by name or id (None: dm_control's first camera, Meta-World's
         "corner3", the free camera for other MuJoCo envs)
+    :param annotators: the annotators' names (letters, digits, ``_``, ``-``, ``.``), each given a secret link; None:
+        one person on this machine, no token (only on 127.0.0.1, localhost or ::1)
+    :param instructions: the plain text shown above the clips (None: a sentence for the task, ``TASK_INSTRUCTIONS``,
+        picked from the env id at ``attach()``)
+    :param answers_per_query: how many different annotators answer each query (at most ``len(annotators)``)
+    :param known_answer_rate: the share of an annotator's questions that are known-answer questions, in [0, 1)
+        (a target: none is shown while no known pair is available to them)
+    :param known_answer_margin: a pair's answer is known from the true reward when its two undiscounted segment
+        returns differ by at least this many ``return_scale`` (None: only majorities of annotators make known answers)
+    :param report_path: a JSON file that receives ``agreement()`` (written whole) after every feedback session and on
+        ``close()``; None: none
+    :param seed: the seed of the draws that mix the known-answer questions in
     """
 
     def __init__(
@@ -94,6 +295,13 @@ class WebTeacher(InteractiveTeacher):
         clip_dir: str | Path | None = None,
         reminder_interval: float = 60.0,
         camera: str | int | None = None,
+        annotators: Sequence[str] | None = None,
+        instructions: str | None = None,
+        answers_per_query: int = 1,
+        known_answer_rate: float = 0.0,
+        known_answer_margin: float | None = 0.5,
+        report_path: str | Path | None = None,
+        seed: int | None = None,
     ):
         if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
             raise ValueError(f"port must be an integer in [0, 65535], got {port!r}")
@@ -104,6 +312,26 @@ class WebTeacher(InteractiveTeacher):
         for name, value in (("width", width), ("height", height)):
             if isinstance(value, bool) or not isinstance(value, int) or value < 16:
                 raise ValueError(f"{name} must be an integer >= 16 pixels, got {value!r}")
+        if not isinstance(host, str) or not host:
+            raise ValueError(f"host must be an address to bind, e.g. '127.0.0.1' or '0.0.0.0', got {host!r}")
+        names = self._check_annotators(annotators, host)
+        if instructions is not None and not isinstance(instructions, str):
+            raise ValueError(f"instructions must be a string (plain text) or None (the task's own), got {instructions!r}")
+        most = 1 if names is None else len(names)
+        if isinstance(answers_per_query, bool) or not isinstance(answers_per_query, int) or not 1 <= answers_per_query <= most:
+            raise ValueError(
+                f"answers_per_query must be an integer in [1, {most}] (different annotators answer each query; "
+                f"{most} annotator(s) given), got {answers_per_query!r}"
+            )
+        rate = known_answer_rate
+        if isinstance(rate, bool) or not isinstance(rate, (int, float)) or not 0 <= rate < 1:
+            raise ValueError(f"known_answer_rate must be a number in [0, 1), got {known_answer_rate!r}")
+        if known_answer_margin is not None and not (
+            isinstance(known_answer_margin, (int, float)) and 0 < known_answer_margin < math.inf
+        ):
+            raise ValueError(f"known_answer_margin must be a number > 0 (return_scales) or None, got {known_answer_margin!r}")
+        if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
+            raise ValueError(f"seed must be an integer or None, got {seed!r}")
         from sb3_pride.human.render import use_headless_gl
 
         use_headless_gl()  # before the first env is made: MuJoCo reads MUJOCO_GL once
@@ -111,30 +339,91 @@ class WebTeacher(InteractiveTeacher):
         self.width, self.height, self.reminder_interval = width, height, reminder_interval
         self.clip_dir = None if clip_dir is None else Path(clip_dir)
         self.camera = camera
+        self.annotators = names
+        self.instructions = instructions
+        self.answers_per_query = answers_per_query
+        self.known_answer_rate = float(known_answer_rate)
+        self.known_answer_margin = None if known_answer_margin is None else float(known_answer_margin)
+        self.report_path = None if report_path is None else Path(report_path)
+        self.seed = seed
         self._init_runtime()
+
+    @staticmethod
+    def _check_annotators(annotators: Sequence[str] | None, host: str) -> list[str] | None:
+        if annotators is None:
+            if not is_local(host):
+                raise ValueError(
+                    f"annotators must be given to serve on {host!r}: beyond this machine ({', '.join(LOCAL_HOSTS)}) each "
+                    f"person needs a secret link, e.g. WebTeacher(host={host!r}, annotators=['ana', 'ben'])"
+                )
+            return None
+        if isinstance(annotators, str) or not isinstance(annotators, Sequence) or len(annotators) == 0:
+            raise ValueError(f"annotators must be a non-empty list of names or None (one person), got {annotators!r}")
+        names = list(annotators)
+        for name in names:
+            if not isinstance(name, str) or not ANNOTATOR_NAME.fullmatch(name):
+                raise ValueError(
+                    "annotators must be names of 1 to 40 letters, digits, '_', '-' or '.' (they name logger keys), "
+                    f"got {name!r}"
+                )
+        if len(set(names)) != len(names):
+            raise ValueError(f"annotators must be distinct names, got {names}")
+        return names
 
     def _init_runtime(self) -> None:
         self._attached = False
+        self._env_id: str | None = None
         self._budget: dict[str, int | None] = {"max": None, "asked": None}
         self._renderer: Any = None
+        self._render_thread = _RenderThread()
         self._server: Any = None
         self._session: _Session | None = None
         self._condition = threading.Condition()
-        self._last_seen = 0.0  # when the page last asked for the state
+        self._report_lock = threading.Lock()
+        self._last_seen: dict[str, float] = {}  # annotator -> when their page last asked for the state
         self._temporary_dir: str | None = None
+        # a new teacher (a loaded model's too) makes new tokens: they are never saved
+        self._tokens = {name: secrets.token_urlsafe(18) for name in self.annotators or ()}
+        self._known: list[_Known] = []  # known-answer pairs, oldest first
+        self._answers: list[_Answer] = []  # every answer given to this teacher, oldest first
+        self._seen: dict[str, set[str]] = {}  # pair -> annotators who answered it
+        self._clip_alias: dict[str, str] = {}  # a known-answer question's clip name -> the file it shows
+        self._rng = random.Random(self.seed)
+        self._stats: dict[str, dict[str, Any]] | None = None  # agreement(), until the next answer
+        self._flagged: set[str] = set()  # annotators already warned about on the console
 
-    # a saved model keeps the settings, not the server
+    # a saved model keeps the settings, not the server, the tokens or the answers
+    _SETTINGS = (
+        "port", "host", "timeout", "width", "height", "clip_dir", "reminder_interval", "camera", "annotators",
+        "instructions", "answers_per_query", "known_answer_rate", "known_answer_margin", "report_path", "seed",
+    )  # fmt: skip
+    _DEFAULTS: ClassVar[dict[str, Any]] = dict(
+        annotators=None, instructions=None, answers_per_query=1, known_answer_rate=0.0, known_answer_margin=0.5,
+        report_path=None, seed=None,
+    )  # fmt: skip
+
     def __getstate__(self) -> dict:
-        keep = ("port", "host", "timeout", "width", "height", "clip_dir", "reminder_interval", "camera")
-        return {name: self.__dict__[name] for name in keep}
+        return {name: self.__dict__[name] for name in self._SETTINGS}
 
     def __setstate__(self, state: dict) -> None:
-        self.__dict__.update(state)
+        self.__dict__.update({**self._DEFAULTS, **state})  # a teacher saved before a setting existed gets its default
         self._init_runtime()
 
     @property
     def url(self) -> str:
-        return f"http://{self.host}:{self.port}/"
+        """The page's address (with ``annotators``, each opens their own link instead: ``links``)."""
+        host = socket.gethostname() if self.host in ("0.0.0.0", "::", "") else self.host
+        return f"http://[{host}]:{self.port}/" if ":" in host else f"http://{host}:{self.port}/"
+
+    @property
+    def links(self) -> dict[str, str]:
+        """Each annotator's personal link (the page's URL with their secret token); empty without ``annotators``."""
+        return {name: f"{self.url}?token={token}" for name, token in self._tokens.items()}
+
+    @property
+    def page_instructions(self) -> str:
+        """The instructions the page shows: ``instructions``, or the task's own (``default_instructions``)."""
+        return self.instructions if self.instructions is not None else default_instructions(self._env_id)
 
     # attaching --------------------------------------------------------------------------------------------------
     def attach(self, env: "VecEnv", buffer: "PreferenceReplayBuffer") -> None:
@@ -159,7 +448,13 @@ class WebTeacher(InteractiveTeacher):
                 "from an empty one"
             )
         if self._renderer is None or self._renderer.env_id != env_id:
-            self._renderer = SegmentRenderer(env_id, width=self.width, height=self.height, camera=self.camera)
+            # made (and later used and closed) in the render thread, which owns every GL context of this teacher
+            renderer = self._render_thread.call(
+                SegmentRenderer, env_id, width=self.width, height=self.height, camera=self.camera
+            )
+            if self._renderer is not None:
+                self._render_thread.call(self._renderer.close)
+            self._renderer = renderer
         state_size = enable_render_states(env, self._renderer.layout)
         if state_size != self._renderer.state_size:
             raise ValueError(
@@ -167,6 +462,7 @@ class WebTeacher(InteractiveTeacher):
                 "RenderStates(env, env_id=...) must name an id that makes this same env"
             )
         buffer.record_render_states = True
+        self._env_id = env_id
         self._attached = True
         self._clips_folder()  # made now, not by two threads at once
         self._start_server()
@@ -177,19 +473,26 @@ class WebTeacher(InteractiveTeacher):
         from werkzeug.serving import make_server
 
         try:
-            self._server = make_server(self.host, self.port, self._make_app(), threaded=True)
+            self._server = make_server(
+                self.host, self.port, self._make_app(), threaded=True, request_handler=_quiet_request_handler()
+            )
         except (OSError, SystemExit) as error:  # werkzeug exits (SystemExit) on a port in use, after saying so
             raise ValueError(
                 f"port {self.port} on {self.host} is in use or cannot be bound: pass another, WebTeacher(port=...)"
             ) from error
         self.port = self._server.server_port
-        threading.Thread(target=self._server.serve_forever, name="WebTeacher", daemon=True).start()
+        threading.Thread(target=self._server.serve_forever, args=(0.1,), name="WebTeacher", daemon=True).start()
+        if self._tokens:
+            lines = "\n".join(f"  {name}: {link}" for name, link in self.links.items())
+            print(f"WebTeacher: serving {self.url}; each annotator opens their own (secret) link:\n{lines}", flush=True)
 
     def close(self) -> None:
-        """Stop the web server, close the renderer's env and remove the temporary clips."""
+        """Write the agreement report, stop the web server, close the renderer's env and remove the temporary clips."""
+        self._write_report()
         if self._renderer is not None:
-            self._renderer.close()
+            self._render_thread.call(self._renderer.close)
             self._renderer = None
+        self._render_thread.stop()
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()
@@ -215,61 +518,107 @@ class WebTeacher(InteractiveTeacher):
     # a feedback session -----------------------------------------------------------------------------------------
     def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray:
         """
-        Show every pair on the page and wait for its answer: μ per pair, NaN for a skip (or a timeout). Each answer
-        (and undo) is journaled through ``context`` the moment it is given.
+        Show every pair on the page and wait for its answers: μ per pair (the mean of its answers that are not skips),
+        NaN when all are skips (or a timeout came first). Each answer (and undo) is journaled through ``context`` the
+        moment it is given. May be called from any thread, one feedback session at a time.
         """
         if not self._attached:
             raise RuntimeError("WebTeacher was not attached to an env (PEBBLE/PRIDE attach their teacher themselves)")
         if pairs.render_states is None:
             raise ValueError("WebTeacher needs pairs with render_states (recorded once it is attached to the model)")
-        from sb3_pride.human.render import encode_mp4
-
-        number = context.session
-        folder = self._clips_folder()
         queries = []
         for inputs in pairs.inputs:
-            query_id = uuid.uuid4().hex[:12]
-            queries.append(_Query(query_id, inputs, (f"/clips/{query_id}-left.mp4", f"/clips/{query_id}-right.mp4")))
+            question_id = uuid.uuid4().hex[:12]
+            queries.append(_Query(question_id, inputs, self._clip_urls(question_id)))
+        known = self._known_from_reward(pairs)
+        session = _Session(context.session, queries, context.asked_before, context)
         with self._condition:
-            self._session = _Session(number, queries, context.asked_before, context.record, context.retract)
+            if self._session is not None:
+                raise RuntimeError(
+                    f"WebTeacher asks one feedback session at a time: session {self._session.number} is still open"
+                )
+            self._session = session
             self._budget = {"max": context.budget, "asked": context.asked_before}
             self._condition.notify_all()
-        print(f"WebTeacher: feedback session {number}, {len(queries)} queries: answer them at {self.url}", flush=True)
+        where = f"{self.url} (each annotator through their own link)" if self._tokens else self.url
+        print(f"WebTeacher: feedback session {session.number}, {len(queries)} queries: answer them at {where}", flush=True)
         try:
-            # the clips are rendered in order while the page already shows the first ones
-            for query, states in zip(queries, pairs.render_states, strict=True):
-                for clip, segment_states in zip(query.clips, states, strict=True):
-                    encode_mp4(self._renderer.render(segment_states), self._renderer.fps, folder / Path(clip).name)
-                with self._condition:
-                    query.ready = True
-                    self._condition.notify_all()
-            session = self._wait_for_answers()
+            # the clips are rendered in order (in the render thread) while the page already shows the first ones
+            self._render_thread.call(self._render_clips, session, pairs.render_states, known)
+            self._wait_for_answers()
         except BaseException:
             with self._condition:
-                self._session = None
+                session.cancelled = True
+                if self._session is session:
+                    self._session = None
+                self._condition.notify_all()
             raise
-        return np.array([np.nan if query.label is None else query.label for query in session.queries])
+        labels = np.array([query.label() for query in session.queries])
+        self._session_over(session)
+        return labels
+
+    @staticmethod
+    def _clip_urls(question_id: str) -> tuple[str, str]:
+        return f"/clips/{question_id}-left.mp4", f"/clips/{question_id}-right.mp4"
+
+    def _known_from_reward(self, pairs: SegmentPairs) -> list[float | None]:
+        """Per pair, its answer when the true reward makes it clear (the higher return), else None."""
+        if self.known_answer_rate == 0 or self.known_answer_margin is None or pairs.true_rewards is None:
+            return [None] * len(pairs)
+        returns = np.asarray(pairs.true_rewards, dtype=np.float64).sum(axis=-1)
+        difference = returns[:, 1] - returns[:, 0]
+        clear = np.abs(difference) >= self.known_answer_margin * abs(float(pairs.return_scale))
+        clear &= (difference != 0) & np.isfinite(difference)
+        return [float(d > 0) if is_clear else None for d, is_clear in zip(difference, clear, strict=True)]
+
+    def _render_clips(self, session: _Session, render_states: np.ndarray, known: list[float | None]) -> None:
+        """Render and encode each query's two clips, in order (runs in the render thread)."""
+        from sb3_pride.human.render import encode_mp4
+
+        folder = self._clips_folder()
+        for query, states, answer in zip(session.queries, render_states, known, strict=True):
+            if session.cancelled:
+                return
+            for clip, segment_states in zip(query.clips, states, strict=True):
+                encode_mp4(self._renderer.render(segment_states), self._renderer.fps, folder / Path(clip).name)
+            with self._condition:
+                query.ready = True
+                if answer is not None:
+                    names = (Path(query.clips[0]).name, Path(query.clips[1]).name)
+                    self._add_known(_Known(query.pair, query.inputs, names, answer, "true reward"))
+                self._condition.notify_all()
+
+    def _add_known(self, known: _Known) -> None:
+        """Keep a known-answer pair (once; the oldest are dropped beyond ``KNOWN_POOL_SIZE``). Holds the lock."""
+        if any(entry.pair == known.pair for entry in self._known):
+            return
+        self._known.append(known)
+        del self._known[:-KNOWN_POOL_SIZE]
 
     def _wait_for_answers(self) -> _Session:
-        """Wait until every query is answered (or the timeout skips the rest), then close the session and return it."""
+        """Wait until every query has its answers (or the timeout skips the rest), then close the session and return it."""
         start = last_reminder = time.monotonic()
+        k = self.answers_per_query
         with self._condition:
-            assert self._session is not None
-            while self._session.unanswered():
+            session = self._session
+            assert session is not None
+            while session.open(k):
                 now = time.monotonic()
                 if self.timeout is not None and now - start >= self.timeout:
-                    # the rest are skipped: asked, not labeled, and journaled as such
-                    skipped = self._session.unanswered()
-                    for query in skipped:
-                        self._record(query, None)
-                    print(f"WebTeacher: timeout, {len(skipped)} queries skipped", flush=True)
+                    # queries nobody answered are skipped: asked, not labeled, and journaled as such
+                    skipped = [query for query in session.open(k) if not query.answers]
+                    session.context.record(
+                        [JournalEntry(session.number, query.inputs, math.nan, time=time.time()) for query in skipped]
+                    )
+                    partial = len(session.open(k)) - len(skipped)
+                    short = f", {partial} with fewer than {k} answers" if partial else ""
+                    print(f"WebTeacher: timeout, {len(skipped)} queries skipped{short}", flush=True)
                     break
                 if now - last_reminder >= self.reminder_interval:
                     last_reminder = now
-                    seen = "never" if self._last_seen == 0 else f"{now - self._last_seen:.0f} s ago"
                     print(
-                        f"WebTeacher: still waiting for {len(self._session.unanswered())} answers of feedback session "
-                        f"{self._session.number} at {self.url} (page last seen: {seen})",
+                        f"WebTeacher: still waiting for {len(session.open(k))} queries of feedback session "
+                        f"{session.number} at {self.url} (page last seen: {self._seen_summary(now)})",
                         flush=True,
                     )
                 wait = self.reminder_interval - (now - last_reminder)
@@ -277,76 +626,366 @@ class WebTeacher(InteractiveTeacher):
                     wait = min(wait, self.timeout - (now - start))
                 self._condition.wait(timeout=max(wait, 0.01))
             # closed in the same locked block: no answer or undo can reach it once it is over
-            session, self._session = self._session, None
+            self._session = None
+            self._condition.notify_all()
             return session
 
-    def _record(self, query: _Query, label: float | None) -> None:
-        """An answer: journaled (flushed to disk) first, then kept, so that a failed write changes nothing. Holds the lock."""
-        assert self._session is not None
-        value = np.nan if label is None else float(label)
-        self._session.record([JournalEntry(self._session.number, query.inputs, value)])
-        query.label, query.answered = value, True
-        self._session.answer_order.append(query.id)
-        self._budget["asked"] = self._session.asked_before + self._session.n_answered
-        self._condition.notify_all()
+    def _seen_summary(self, now: float) -> str:
+        def ago(name: str) -> str:
+            seen = self._last_seen.get(name)
+            return "never" if seen is None else f"{now - seen:.0f} s ago"
 
-    # the web page -----------------------------------------------------------------------------------------------
-    def state(self) -> dict[str, Any]:
-        """What the page shows: the session's queries (clips, answered or not), progress and the budget."""
+        if not self._tokens:
+            return ago(ANONYMOUS)
+        return ", ".join(f"{name} {ago(name)}" for name in self._tokens)
+
+    def _session_over(self, session: _Session) -> None:
+        """After a session: majorities become known answers; the agreement is logged, reported and checked."""
         with self._condition:
-            self._last_seen = time.monotonic()
-            session, budget = self._session, dict(self._budget)
-            if session is None:
-                return {"session": None, "queries": [], "answered": 0, "total": 0, "budget": budget}
-            queries = [
-                {"id": q.id, "left": q.clips[0], "right": q.clips[1], "answered": q.answered, "ready": q.ready}
-                for q in session.queries
-            ]
-            return {
-                "session": session.number,
-                "queries": queries,
-                "answered": session.n_answered,
-                "total": len(session.queries),
-                "budget": budget,
-            }
+            for query in session.queries:
+                self._learn_majority(query)
+            report = self._agreement()
+        for name, stats in report.items():
+            for key in ("answers", "known_answers", "known_answer_agreement", "compared_answers", "pairwise_agreement"):
+                if stats[key] is not None:
+                    session.context.log(f"annotators/{name}/{key}", float(stats[key]))
+            if stats["flagged"] and name not in self._flagged:
+                self._flagged.add(name)
+                print(
+                    f"WebTeacher: {name} matched only {stats['known_answer_agreement']:.0%} of {stats['known_answers']} "
+                    "known answers: check their labels",
+                    flush=True,
+                )
+        self._write_report(report)
 
-    def answer(self, query_id: Any, label: Any) -> tuple[bool, str]:
-        """Record the answer to ``query_id``; refused (nothing recorded) for an unknown query or label."""
+    def _learn_majority(self, query: _Query) -> None:
+        """A query on which at least two annotators, a majority of those who did not skip, chose one side becomes known."""
+        if self.known_answer_rate == 0:
+            return
+        given = [value for value in query.answers.values() if not math.isnan(value)]
+        if len(given) < 2:
+            return
+        label, count = Counter(given).most_common(1)[0]
+        if count >= 2 and 2 * count > len(given) and label in (0.0, 1.0):
+            names = (Path(query.clips[0]).name, Path(query.clips[1]).name)
+            self._add_known(_Known(query.pair, query.inputs, names, label, "majority"))
+
+    # who answers what -------------------------------------------------------------------------------------------
+    def _person(self, annotator: str | None) -> str | None:
+        """The annotator behind a call: the one person without ``annotators``; None for nobody (an overview)."""
+        if not self._tokens:
+            return ANONYMOUS
+        if annotator is not None and annotator not in self._tokens:
+            raise ValueError(f"annotator must be one of {list(self._tokens)}, got {annotator!r}")
+        return annotator
+
+    def _journal_name(self, name: str) -> str | None:
+        return None if not self._tokens else name
+
+    def _hand_out(self, session: _Session, name: str) -> list[_Query]:
+        """The questions handed to ``name`` (the first is shown), topped up to ``QUEUE_LENGTH``. Holds the lock."""
+        self._release_stale(session, name)
+        handed = session.queues.setdefault(name, [])
+        while len(handed) < QUEUE_LENGTH:
+            question = self._next_question(session, name, first=not handed)
+            if question is None:
+                break
+            handed.append(question)
+            if question.known is None:
+                question.holders.add(name)
+        return handed
+
+    def _release_stale(self, session: _Session, name: str) -> None:
+        """Questions handed to annotators whose page went quiet (``RELEASE_AFTER``) go back to the others."""
+        now = time.monotonic()
+        for other, handed in session.queues.items():
+            if other != name and handed and now - self._last_seen.get(other, now) > RELEASE_AFTER:
+                for question in handed:
+                    question.holders.discard(other)
+                handed.clear()
+
+    def _next_question(self, session: _Session, name: str, first: bool) -> _Query | None:
+        """
+        The next question for ``name``: a ready query they have not answered that still needs answers (those others
+        already answer first: they finish sooner), else (for the one shown) one preloaded for someone else; in
+        place of it, a known-answer question at ``known_answer_rate``.
+        """
+        k = self.answers_per_query
+        candidates = [
+            query
+            for query in session.queries
+            if query.ready and name not in query.answers and name not in query.holders and query.taken < k
+        ]
+        real = max(candidates, key=lambda q: q.taken) if candidates else None  # max: the first of the most taken
+        preloaded: tuple[str, _Query] | None = None
+        if real is None and first:
+            preloaded = next(
+                (
+                    (other, handed[1])
+                    for other, handed in session.queues.items()
+                    if other != name and len(handed) > 1 and handed[1].known is None and name not in handed[1].answers
+                ),
+                None,
+            )
+        if real is None and preloaded is None:
+            return None  # nothing left for them: no known-answer question either, the session is nearly over
+        if self.known_answer_rate > 0 and self._rng.random() < self.known_answer_rate:
+            known = self._known_question(session, name)
+            if known is not None:
+                return known
+        if real is None and preloaded is not None:
+            other, real = preloaded
+            session.queues[other].remove(real)
+            real.holders.discard(other)
+        return real
+
+    def _known_question(self, session: _Session, name: str) -> _Query | None:
+        """
+        A known-answer question for ``name``: a known pair they have not answered (else one they answered in an
+        earlier session), never one of this session's queries that may still be handed to them.
+        """
+        shown = session.known_shown.setdefault(name, set())
+        fresh: list[_Known] = []
+        again: list[_Known] = []
+        for known in self._known:
+            if known.pair in shown:
+                continue
+            live = session.by_pair.get(known.pair)
+            if live is not None and (name in live.answers or name in live.holders or live.taken < self.answers_per_query):
+                continue
+            (again if name in self._seen.get(known.pair, ()) else fresh).append(known)
+        if not (fresh or again):
+            return None
+        known = self._rng.choice(fresh or again)
+        shown.add(known.pair)
+        question_id = uuid.uuid4().hex[:12]  # its own id and clip names: nothing on the page tells it apart
+        question = _Query(question_id, known.inputs, self._clip_urls(question_id), known.answer, True, pair=known.pair)
+        for url, file in zip(question.clips, known.clips, strict=True):
+            self._clip_alias[Path(url).name] = file
+        session.known[question_id] = question
+        return question
+
+    # answers ----------------------------------------------------------------------------------------------------
+    def answer(self, query_id: Any, label: Any, annotator: str | None = None) -> tuple[int, str]:
+        """
+        Record ``annotator``'s answer to question ``query_id`` (the one shown to them); a refusal records nothing.
+
+        :param annotator: who answers (None without ``annotators``: the one person)
+        :return: (HTTP status, message): 200 when recorded; 400 for a malformed label or id; 404 for a question that
+            is not in the open session; 409 for no open session, a question the annotator already answered or a query
+            that has all its answers; 403 for a question not shown to the annotator
+        """
         if not (
             label is None or (isinstance(label, (int, float)) and not isinstance(label, bool) and label in ALLOWED_LABELS)
         ):
-            return False, f"label must be 0 (left), 1 (right), 0.5 (equal) or null (skip), got {label!r}"
+            return 400, f"label must be 0 (left), 1 (right), 0.5 (equal) or null (skip), got {label!r}"
+        if not isinstance(query_id, str):
+            return 400, f"id must be the string id of the question shown, got {query_id!r}"
         with self._condition:
+            name = self._person(annotator)
+            if name is None:
+                return 400, "name the annotator who answers"
+            self._last_seen[name] = time.monotonic()
             session = self._session
-            query = next((q for q in session.queries if q.id == query_id), None) if session else None
-            if session is None or query is None or not query.ready:
-                return False, f"no open query {query_id!r} in this feedback session (or its clips are not ready)"
-            if query.answered:
-                return False, f"query {query_id!r} is already answered (undo first)"
-            first_open = next(q for q in session.queries if not q.answered)
-            if query is not first_open:  # in order: the journal and the preference dataset then agree on the order
-                return False, f"answer the queries in order: the next one is {first_open.id!r}, not {query_id!r}"
-            self._record(query, None if label is None else float(label))
-            return True, "recorded"
+            if session is None:
+                return 409, "no feedback session is open (it is over, or the next one has not begun)"
+            question = session.find(query_id)
+            if question is None:
+                return 404, f"no question {query_id!r} in feedback session {session.number}"
+            if name in question.answers:
+                return 409, f"question {query_id!r} is answered already by you (undo first)"
+            if question.known is None and len(question.answers) >= self.answers_per_query:
+                return 409, f"query {query_id!r} has all its answers already"
+            handed = session.queues.get(name, [])
+            if not handed or handed[0] is not question:
+                return 403, f"question {query_id!r} is not the one shown to you"
+            value = math.nan if label is None else float(label)
+            if question.known is None:
+                # journaled (flushed to disk) first, then kept, so that a failed write changes nothing
+                annotator_name = self._journal_name(name)
+                session.context.record([JournalEntry(session.number, question.inputs, value, annotator_name, time.time())])
+            handed.pop(0)
+            question.holders.discard(name)
+            question.answers[name] = value
+            given = _Answer(name, question.pair, value, question.known)
+            self._answers.append(given)
+            self._seen.setdefault(question.pair, set()).add(name)
+            session.history.setdefault(name, []).append((question, given))
+            self._changed(session)
+            return 200, "recorded"
 
-    def undo(self) -> tuple[bool, str]:
-        """Take back the last answer of this session (and say so in the journal)."""
+    def undo(self, annotator: str | None = None) -> tuple[int, str]:
+        """
+        Take back ``annotator``'s last answer of this session (and say so in the journal); the question is shown to
+        them again.
+
+        :param annotator: whose answer (None without ``annotators``: the one person)
+        :return: (HTTP status, the question's id or why not): 200 when taken back, 409 when there is none to take back
+        """
         with self._condition:
+            name = self._person(annotator)
             session = self._session
-            if session is None or not session.answer_order:
-                return False, "no answer of this feedback session to undo"
-            session.retract(session.number)  # journaled first, as answers are
-            last = session.answer_order.pop()
-            self._budget["asked"] = session.asked_before + session.n_answered
-            query = next(q for q in session.queries if q.id == last)
-            query.label, query.answered = None, False
-            return True, query.id
+            if name is None or session is None or not session.history.get(name):
+                return 409, "no answer of yours in this feedback session to undo"
+            question, given = session.history[name][-1]
+            if question.known is None:
+                session.context.retract(session.number, entry_id=question.pair, annotator=self._journal_name(name))
+            session.history[name].pop()
+            del question.answers[name]
+            self._answers.remove(given)
+            handed = session.queues.setdefault(name, [])
+            handed.insert(0, question)
+            if question.known is None:
+                question.holders.add(name)
+            while len(handed) > QUEUE_LENGTH:
+                handed.pop().holders.discard(name)
+            self._changed(session)
+            return 200, question.id
+
+    def _changed(self, session: _Session) -> None:
+        """After an answer or an undo: progress and agreement are recounted, the waiting session hears of it."""
+        self._stats = None
+        done = len(session.queries) - len(session.open(self.answers_per_query))
+        self._budget["asked"] = session.asked_before + done
+        self._condition.notify_all()
+
+    # agreement --------------------------------------------------------------------------------------------------
+    def agreement(self) -> dict[str, dict[str, Any]]:
+        """
+        Per annotator (``"anonymous"`` without ``annotators``), over every answer given to this teacher:
+
+        - ``answers``, ``skips``: questions answered (known-answer ones included), and how many of them were skips;
+        - ``known_answers``, ``known_answer_agreement``: known-answer questions answered (not skipped), and the share
+          whose answer was the known one (None before the first);
+        - ``compared_answers``, ``pairwise_agreement``: (pair, other annotator) comparisons on the pairs both answered
+          (not skipped), and the share on which they gave the same answer (None before the first);
+        - ``flagged``: whether ``known_answer_agreement`` is below ``FLAG_BELOW`` over at least ``FLAG_MIN_KNOWN``
+          known answers.
+        """
+        with self._condition:
+            return {name: dict(stats) for name, stats in self._agreement().items()}
+
+    def _agreement(self) -> dict[str, dict[str, Any]]:
+        """``agreement()``, computed once per change. Holds the lock."""
+        if self._stats is not None:
+            return self._stats
+        names = list(self._tokens) or [ANONYMOUS]
+        counts: dict[str, Counter[str]] = {name: Counter() for name in names}
+        latest: dict[str, dict[str, float]] = {}  # pair -> annotator -> their latest answer that is not a skip
+        for given in self._answers:
+            count = counts[given.annotator]
+            count["answers"] += 1
+            if math.isnan(given.label):
+                count["skips"] += 1
+                continue
+            if given.known is not None:
+                count["known"] += 1
+                count["known_right"] += given.label == given.known
+            latest.setdefault(given.pair, {})[given.annotator] = given.label
+        for labels in latest.values():
+            for name, label in labels.items():
+                for other, other_label in labels.items():
+                    if other != name:
+                        counts[name]["compared"] += 1
+                        counts[name]["agreed"] += label == other_label
+        stats = {}
+        for name, count in counts.items():
+            known_agreement = count["known_right"] / count["known"] if count["known"] else None
+            stats[name] = {
+                "answers": count["answers"],
+                "skips": count["skips"],
+                "known_answers": count["known"],
+                "known_answer_agreement": known_agreement,
+                "compared_answers": count["compared"],
+                "pairwise_agreement": count["agreed"] / count["compared"] if count["compared"] else None,
+                "flagged": known_agreement is not None and count["known"] >= FLAG_MIN_KNOWN and known_agreement < FLAG_BELOW,
+            }
+        self._stats = stats
+        return stats
+
+    def _write_report(self, report: dict[str, dict[str, Any]] | None = None) -> None:
+        """``agreement()`` to ``report_path``, written whole (a reader never sees half of it)."""
+        if self.report_path is None:
+            return
+        with self._condition:
+            report = report if report is not None else self._agreement()
+            payload = {"time": time.time(), "known_answer_pairs": len(self._known), "annotators": report}
+        with self._report_lock, atomic_write_path(self.report_path) as temporary:
+            temporary.write_text(json.dumps(payload, indent=2) + "\n")
+
+    # the web page -----------------------------------------------------------------------------------------------
+    def state(self, annotator: str | None = None) -> dict[str, Any]:
+        """
+        What ``annotator``'s page shows (handing them questions): the question shown and the next, the session's and
+        the budget's progress, their answers and the team's, the instructions.
+
+        :param annotator: whose page (None without ``annotators``: the one person; with them, None is an overview
+            that hands nothing out)
+        """
+        with self._condition:
+            name = self._person(annotator)
+            if name is not None:
+                self._last_seen[name] = time.monotonic()
+            session = self._session
+            handed = self._hand_out(session, name) if session is not None and name is not None else []
+            if session is None:
+                waiting = "waiting for the next feedback session"
+            elif handed:
+                waiting = ""
+            elif any(not query.ready for query in session.open(self.answers_per_query)):
+                waiting = "rendering the next clips…"
+            elif session.open(self.answers_per_query):
+                waiting = "the others are answering the last queries of this session"
+            else:
+                waiting = "all answered"
+            stats = self._agreement()
+            team = [
+                {"name": other, "session": len(session.history.get(other, [])) if session else 0, **stats[other]}
+                for other in stats
+            ]
+            return {
+                "session": None if session is None else session.number,
+                "you": annotator if self._tokens else None,
+                "query": None if not handed else {"id": handed[0].id, "left": handed[0].clips[0], "right": handed[0].clips[1]},
+                "next": None if len(handed) < 2 else {"left": handed[1].clips[0], "right": handed[1].clips[1]},
+                "waiting": waiting,
+                "answered": 0 if session is None else len(session.queries) - len(session.open(self.answers_per_query)),
+                "total": 0 if session is None else len(session.queries),
+                "answers_per_query": self.answers_per_query,
+                "team": team,
+                "budget": dict(self._budget),
+                "instructions": self.page_instructions,
+            }
+
+    def _token_owner(self, token: str) -> tuple[bool, str | None]:
+        """(True, whose token) when ``token`` is an annotator's, (True, None) when none is needed, else (False, None)."""
+        if not self._tokens:
+            return True, None
+        for name, secret in self._tokens.items():
+            if secrets.compare_digest(token.encode(), secret.encode()):
+                return True, name
+        return False, None
 
     def _make_app(self) -> Any:
         from flask import Flask, jsonify, request, send_from_directory
+        from werkzeug.exceptions import HTTPException
 
         app = Flask("sb3_pride.human", static_folder=None)
+        app.config["MAX_CONTENT_LENGTH"] = 64 * 1024  # an answer is a few bytes: a larger body is refused (413)
         page = resources.files("sb3_pride.human").joinpath("static/index.html").read_text()
+
+        @app.errorhandler(HTTPException)
+        def http_error(error: HTTPException) -> Any:  # an unknown route, a wrong method, a body too large: JSON too
+            return jsonify(error=error.description), error.code
+
+        def annotator() -> tuple[bool, str | None]:
+            """(True, who) for a request that carries a valid token or needs none, (False, None) otherwise."""
+            return self._token_owner(request.headers.get("X-Annotator-Token") or request.args.get("token") or "")
+
+        def refused(status: int, message: str) -> Any:
+            return jsonify(error=message), status
+
+        no_token = "this needs an annotator's token: open your personal link (…/?token=…) from whoever runs the training"
 
         @app.get("/")
         def index() -> Any:
@@ -354,29 +993,53 @@ class WebTeacher(InteractiveTeacher):
 
         @app.get("/api/state")
         def state() -> Any:
-            return jsonify(self.state())
+            ok, name = annotator()
+            return jsonify(self.state(name)) if ok else refused(401, no_token)
 
         @app.post("/api/answer")
         def answer() -> Any:
+            ok, name = annotator()
+            if not ok:
+                return refused(401, no_token)
             body = request.get_json(silent=True)
             if not isinstance(body, dict) or "id" not in body or "label" not in body:
-                return jsonify(error='expected a JSON object {"id": ..., "label": 0 | 0.5 | 1 | null}'), 400
-            ok, message = self.answer(body["id"], body["label"])
-            return (jsonify(state=self.state()), 200) if ok else (jsonify(error=message), 400)
+                return refused(400, 'expected a JSON object {"id": ..., "label": 0 | 0.5 | 1 | null}')
+            status, message = self.answer(body["id"], body["label"], name)
+            return (jsonify(state=self.state(name)), 200) if status == 200 else refused(status, message)
 
         @app.post("/api/undo")
         def undo() -> Any:
-            ok, message = self.undo()
-            return (jsonify(undone=message, state=self.state()), 200) if ok else (jsonify(error=message), 400)
+            ok, name = annotator()
+            if not ok:
+                return refused(401, no_token)
+            status, message = self.undo(name)
+            return (jsonify(undone=message, state=self.state(name)), 200) if status == 200 else refused(status, message)
 
         @app.get("/clips/<name>")
         def clip(name: str) -> Any:
+            if not annotator()[0]:
+                return refused(401, no_token)
             # conditional=True: HTTP Range requests (seeking and looping video need them), ETag, 304s
             if not name.endswith(".mp4"):  # not a clip being written (.part)
-                return jsonify(error=f"no clip {name!r}"), 404
-            return send_from_directory(self._clips_folder(), name, mimetype="video/mp4", conditional=True)
+                return refused(404, f"no clip {name!r}")
+            file = self._clip_alias.get(name, name)
+            return send_from_directory(self._clips_folder(), file, mimetype="video/mp4", conditional=True)
 
         return app
+
+
+def _quiet_request_handler() -> type:
+    """werkzeug's request handler without a console line per request (the page polls every second); tokens masked."""
+    from werkzeug.serving import WSGIRequestHandler
+
+    class QuietRequestHandler(WSGIRequestHandler):
+        def log_request(self, code: Any = "-", size: Any = "-") -> None:
+            if isinstance(code, int) and code < 400:  # an HTTPStatus is an int
+                return
+            self.requestline = re.sub(r"token=[^&\s]*", "token=...", self.requestline)
+            super().log_request(code, size)
+
+    return QuietRequestHandler
 
 
 _shared: WebTeacher | None = None

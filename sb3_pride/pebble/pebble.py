@@ -24,10 +24,17 @@ from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, merge_answers, query_id, undone_index
-from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs, chronological_rows, sample_segment_pairs, select_queries
-from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, RobustLabels, check_temporal_crop
+from sb3_pride.common.queries import (
+    QUERY_SELECTIONS,
+    SegmentPairs,
+    chronological_rows,
+    pair_features,
+    sample_segment_pairs,
+    select_queries,
+)
+from sb3_pride.common.reward_model import PreferenceDataset, PseudoLabels, RewardEnsemble, RobustLabels, check_temporal_crop
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
-from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real
+from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real, make_option
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 
@@ -82,7 +89,9 @@ class PEBBLE(SAC):
     :param queries_per_session: K, queries asked per session (the last session is cut to the budget)
     :param segment_length: steps per segment (PEBBLE: 50); a segment never crosses an episode end
     :param query_selection: how queries are picked among ``candidates_multiplier`` × K random pairs:
-        "uniform", "disagreement" (std of the members' P[σ1 ≻ σ0]) or "entropy" (their mean entropy);
+        "uniform", "disagreement" (std of the members' P[σ1 ≻ σ0]) or "entropy" (their mean entropy), or B-Pref's
+        coverage-based ones: "kcenter" (greedy k-center on the pairs' observations, the labelled pairs counting as
+        covered), "kcenter_disagreement" and "kcenter_entropy" (k-center among the more uncertain half);
         the first session is always uniform
     :param candidates_multiplier: candidate pairs per query for the non-uniform selections (PEBBLE: 10)
     :param max_query_episodes: segments are drawn from this many most recent episodes (PEBBLE: 100)
@@ -108,6 +117,11 @@ class PEBBLE(SAC):
         rest (``sb3_pride.common.reward_model.RobustLabels``). True: RIME's settings; a dict: ``RobustLabels``'
         settings (``alpha``, ``beta_init``, ``beta_min``, ``beta_decay_epochs``, ``flip_probability``). False: every
         label as given (PEBBLE)
+    :param pseudo_labels: SURF's semi-supervised reward learning (Park et al., ICLR 2022): unlabelled segment pairs
+        from the replay buffer beside each labelled minibatch, each member learning from its own confident
+        pseudo-labels (``sb3_pride.common.reward_model.PseudoLabels``). True: SURF's walker-walk settings; a dict:
+        ``PseudoLabels``' settings (``threshold``, ``ratio``, ``weight``, ``unlabeled_per_label``, ``max_unlabeled``).
+        False: labels only (PEBBLE)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
     :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
         or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
@@ -178,6 +192,7 @@ class PEBBLE(SAC):
         reward_early_stop: float | None = 0.97,
         temporal_crop: tuple[int, int] | None = None,
         robust_labels: bool | dict[str, Any] = False,
+        pseudo_labels: bool | dict[str, Any] = False,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
         asynchronous_feedback: bool = False,
@@ -204,10 +219,8 @@ class PEBBLE(SAC):
             raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         temporal_crop = check_temporal_crop(temporal_crop, segment_length)
-        if not isinstance(robust_labels, (bool, np.bool_, dict)):
-            raise ValueError(f"robust_labels must be True, False or a dict of RobustLabels' settings, got {robust_labels!r}")
-        if isinstance(robust_labels, dict):
-            RobustLabels(**robust_labels)  # its own checks name the setting; unknown keys: TypeError
+        make_option("robust_labels", robust_labels, RobustLabels)  # checked before anything is made
+        make_option("pseudo_labels", pseudo_labels, PseudoLabels)
 
         if reward_early_stop is not None:
             check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
@@ -282,9 +295,8 @@ class PEBBLE(SAC):
         self.temporal_crop = temporal_crop
         self.robust_labels = robust_labels if isinstance(robust_labels, dict) else bool(robust_labels)
         #: RIME's running selection of trusted labels (None: every label as given), saved with the model
-        self.label_selection: RobustLabels | None = None
-        if robust_labels is not False:
-            self.label_selection = RobustLabels(**(robust_labels if isinstance(robust_labels, dict) else {}))
+        self.label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
+        self.pseudo_labels = pseudo_labels if isinstance(pseudo_labels, dict) else bool(pseudo_labels)
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.asynchronous_feedback = bool(asynchronous_feedback)
@@ -518,7 +530,7 @@ class PEBBLE(SAC):
                 budget=self.max_feedback,
                 record=self.record_answers,
                 retract=self.retract_answer,
-                log=self._teacher_records.append,  # from the teacher's threads: logged by the model's own
+                log=lambda key, value: self._teacher_records.append((key, value)),  # logged later, by the model's thread
             )
             answer = teacher.ask(pairs, context)
         else:
@@ -680,7 +692,15 @@ class PEBBLE(SAC):
             candidates = candidates[np.array([query_id(pair) not in asked_before for pair in candidates.inputs])]
         if selection != "uniform" and len(candidates) > 0:
             returns = self.reward_model.member_segment_returns(candidates.inputs)
-            candidates = candidates[select_queries(returns, min(n_queries, len(candidates)), selection)]
+            n_obs = candidates.observations.shape[-1]
+            chosen = select_queries(
+                returns,
+                min(n_queries, len(candidates)),
+                selection,
+                features=pair_features(candidates.observations),
+                labeled_features=pair_features(self.preferences.inputs[..., :n_obs]),
+            )
+            candidates = candidates[chosen]
         return candidates
 
     def ask_new_queries(self, n_queries: int) -> tuple[np.ndarray | None, np.ndarray]:
@@ -695,8 +715,15 @@ class PEBBLE(SAC):
             return None, np.zeros(0)
         return candidates.inputs, self.ask_teacher(candidates) if len(candidates) else np.zeros(0)
 
+    def unlabeled_pairs(self, pseudo_labels: PseudoLabels) -> np.ndarray | None:
+        """SURF's unlabelled pairs for a feedback session's training: ``unlabeled_per_label`` per label, drawn as queries."""
+        n = min(pseudo_labels.unlabeled_per_label * len(self.preferences), pseudo_labels.max_unlabeled)
+        pairs = sample_segment_pairs(self.real_buffer, n, self.segment_length, self.max_query_episodes, self.preference_rng)
+        return None if pairs is None else pairs.inputs
+
     def learn_reward(self) -> None:
         """Train the reward ensemble on every preference so far (Eqs. 1–2), then relabel the buffer with r̂."""
+        pseudo_labels = make_option("pseudo_labels", getattr(self, "pseudo_labels", False), PseudoLabels)
         loss, accuracy, epochs = self.reward_model.train_epochs(
             self.preferences,
             self.reward_epochs,
@@ -706,6 +733,8 @@ class PEBBLE(SAC):
             rng=self.preference_rng,
             temporal_crop=self.temporal_crop,
             robust_labels=getattr(self, "label_selection", None),  # models saved by 0.1.0 have none
+            unlabeled=None if pseudo_labels is None else self.unlabeled_pairs(pseudo_labels),
+            pseudo_labels=pseudo_labels,
         )
         self.relabel()
         correlation = self.reward_correlation()
