@@ -213,8 +213,8 @@ def final_text(row: dict, metric: str = "primary_return") -> str:
     if row[metric] is None:
         return "not run"
     text = f"{number(row[metric]['mean'])} ± {number(row[metric]['std'])}"
-    if metric == "final_return" and row["final_success"] is not None:
-        text += f" (success {number(row['final_success'], 2)})"
+    if metric == "primary_return" and row["final_success"] is not None:
+        text += f" (final success {number(row['final_success'], 2)})"
     return text
 
 
