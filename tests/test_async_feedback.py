@@ -47,7 +47,7 @@ def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, as
     if asynchronous:
         # each session's answers took a second: the agent kept stepping meanwhile, on the older reward
         assert all(end > start for start, end in teacher.steps)
-        assert teacher.threads == {"teacher_0"}
+        assert teacher.threads == {"teacher"}
         assert model.steps_awaiting_feedback > 0
         # the next session is published only once the previous one is answered
         assert all(teacher.steps[i][1] <= teacher.steps[i + 1][0] for i in range(2))
@@ -105,8 +105,9 @@ def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwa
     model.learn(400, callback=saver)
     assert saver.saved
     loaded = PEBBLE.load(tmp_path / "open", env=model.get_env())
-    # the open session was not saved: the loaded model asks it again (a journal would give its answers back)
+    # the open session was not saved: the loaded model asks it again at once (a journal would give its answers back)
     assert loaded.asynchronous_feedback and not loaded.feedback_open and loaded.feedback_sessions == 0
+    assert loaded.next_feedback_step <= loaded.num_timesteps
     loaded.learn(400, reset_num_timesteps=False)
     assert loaded.feedback_sessions >= 1 and not loaded.feedback_open
 
@@ -127,11 +128,13 @@ class LoggingTeacher(InteractiveTeacher):
 
     def __init__(self):
         self.oracle = ScriptedTeacher.from_preset("oracle", seed=0)
+        self.asked: list[int] = []
 
     def attach(self, env, buffer) -> None:
         pass
 
     def ask(self, pairs, context):
+        self.asked.append(len(pairs))
         labels = self.oracle(pairs)
         answers = zip(pairs.inputs, labels, strict=True)
         context.record([JournalEntry(context.session, inputs, label, annotator="ana") for inputs, label in answers])
@@ -154,3 +157,27 @@ def test_an_interactive_teachers_log_and_journal_reach_the_model_from_its_thread
     assert model.journal_entries == len(entries) == model.feedback_asked == 40
     assert {entry.annotator for entry in entries} == {"ana"}
     assert pd.read_csv(tmp_path / "progress.csv")["annotators/ana/answers"].dropna().tolist()[-1] == 20.0
+
+
+@pytest.mark.parametrize("asynchronous", [False, True])
+def test_a_new_model_takes_an_interactive_teachers_journaled_answers_back(tiny_kwargs, tmp_path, asynchronous):
+    """Answers a person gave (journaled by the teacher itself) are never asked again by a model resumed from an older
+    checkpoint: every session the journal holds is taken from it, in blocking and asynchronous feedback alike."""
+    journal = tmp_path / "journal.jsonl"
+    kwargs = dict(seed=0, asynchronous_feedback=asynchronous, preference_journal=journal, **tiny_kwargs)
+    first = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=LoggingTeacher(), **kwargs)
+    first.learn(700)
+    assert first.feedback_sessions == 2 and len(PreferenceJournal(journal).read()) == 40
+    teacher = LoggingTeacher()
+    again = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=teacher, **kwargs)
+    again.learn(700)
+    assert teacher.asked == [] and again.feedback_asked == 40 and again.journal_entries == 40
+    assert len(PreferenceJournal(journal).read()) == 40
+    again.learn(400, reset_num_timesteps=False)  # the third session is new: asked, journaled after the others
+    assert teacher.asked == [20] and again.journal_entries == len(PreferenceJournal(journal).read()) == 60
+    # an undo that would take back nothing is refused before the journal is written
+    with pytest.raises(ValueError, match="no answer of feedback session 9"):
+        again.retract_answer(9)
+    with pytest.raises(ValueError, match="to take back"):
+        again.retract_answer(3)  # the third session's answers are taken in already
+    assert len(PreferenceJournal(journal).read()) == 60

@@ -115,3 +115,39 @@ def test_pebble_runs_with_kcenter_query_selection(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, query_selection="kcenter_disagreement", **tiny_kwargs)
     model.learn(700)
     assert model.feedback_sessions == 2 and model.feedback_asked == 40
+
+
+def test_hybrid_replay_draws_its_share_from_the_most_recent_episodes():
+    """QPA's hybrid replay: recent_rows are the rows of the last episodes (across the ring buffer's wrap), and a
+    minibatch with recent_share 0.5 holds that share from them on top of what uniform sampling gives them."""
+    from sb3_pride.common.queries import recent_rows
+
+    buffer = filled_buffer(1, 500, 800)  # wrapped around
+    rows = recent_rows(buffer, 3)
+    last = buffer.observations[(buffer.pos - 1) % 500, 0, 0]
+    recent = [last - 2, last - 1, last]
+    assert set(buffer.observations[rows, 0, 0]) == set(recent) and rows[-1] == (buffer.pos - 1) % 500
+    assert np.isin(buffer.observations[:, 0, 0], recent).sum() == len(rows)  # all of their rows
+    buffer.recent_share, buffer.recent_rows = 0.5, rows
+    np.random.seed(0)
+    share = np.isin(buffer.sample(2000).observations[:, 0].numpy(), recent).mean()
+    assert abs(share - (0.5 + 0.5 * len(rows) / 500)) < 0.05
+    buffer.recent_share = 0.0  # off: SB3's uniform sampling
+    share = np.isin(buffer.sample(2000).observations[:, 0].numpy(), recent).mean()
+    assert abs(share - len(rows) / 500) < 0.05
+
+
+def test_pebble_hybrid_replay_is_on_while_queries_remain(tiny_kwargs):
+    from sb3_pride import PEBBLE
+
+    for bad in (-0.1, 1.5, "half"):
+        with pytest.raises(ValueError, match="hybrid_replay"):
+            PEBBLE("MlpPolicy", "Pendulum-v1", hybrid_replay=bad)
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, hybrid_replay=0.5, max_query_episodes=2, **tiny_kwargs)
+    model.learn(250)  # pre-training: uniform
+    assert model.real_buffer.recent_share == 0.0 and model.real_buffer.recent_rows is None
+    model.learn(450, reset_num_timesteps=False)  # after the first session, queries remain
+    assert model.real_buffer.recent_share == 0.5 and 0 < len(model.real_buffer.recent_rows) <= 400
+    model.max_feedback = model.feedback_asked  # every query asked: uniform again
+    model.learn(10, reset_num_timesteps=False)
+    assert model.real_buffer.recent_share == 0.0

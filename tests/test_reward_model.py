@@ -200,7 +200,7 @@ def test_robust_labels_leave_out_the_flipped_labels_and_learn_a_better_reward():
         scores[robust] = held_out_rank_correlation(model)
         if robust:
             inputs, labels = th.as_tensor(dataset.inputs), th.as_tensor(dataset.labels)
-            trusted, _ = copy.deepcopy(selection).select(model.label_divergence(inputs, labels))
+            trusted, _ = copy.deepcopy(selection).select(model.label_divergence(inputs, labels), dataset.labels)
             assert (~trusted[wrong]).mean() > 0.6 and (~trusted[~wrong]).mean() < 0.25
     assert scores[True] > scores[False] + 0.02, scores
 

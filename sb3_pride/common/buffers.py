@@ -26,6 +26,12 @@ def relabel_rewards(buffer: ReplayBuffer, reward_fn: RewardFn, batch_size: int =
         flat_rewards[start:stop] = reward_fn(flat_obs[start:stop], flat_actions[start:stop])
 
 
+def concatenate_samples(first: ReplayBufferSamples, second: ReplayBufferSamples) -> ReplayBufferSamples:
+    """Two minibatches as one, field by field, ``first``'s rows first; a field SB3 leaves None (n-step) stays None."""
+    fields = [th.cat([a, b]) if a is not None and b is not None else None for a, b in zip(first, second, strict=True)]
+    return ReplayBufferSamples(*fields)  # type: ignore[arg-type]
+
+
 class PreferenceReplayBuffer(ReplayBuffer):
     """
     SB3 ``ReplayBuffer`` for preference-based RL (PEBBLE).
@@ -69,6 +75,10 @@ class PreferenceReplayBuffer(ReplayBuffer):
         #: (buffer_size, n_envs, state_dim) float64, the simulator state after each stored step (the frame of its
         #: next observation), allocated at the first recorded transition; None while nothing was recorded
         self.render_states: np.ndarray | None = None
+        #: QPA's hybrid replay: the share of each minibatch drawn from ``recent_rows`` (0: uniform, as SB3 samples)
+        self.recent_share = 0.0
+        #: buffer rows of the most recent episodes (set by the algorithm: ``PEBBLE(hybrid_replay=...)``)
+        self.recent_rows: np.ndarray | None = None
 
     def __getstate__(self) -> dict:
         # The reward model and the entropy estimator belong to the algorithm, which re-attaches them
@@ -118,7 +128,17 @@ class PreferenceReplayBuffer(ReplayBuffer):
             self.timeouts[last, running] = 1
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        samples = super().sample(batch_size, env=env)
+        n_recent = round(self.recent_share * batch_size) if self.recent_rows is not None and len(self.recent_rows) else 0
+        if n_recent == 0:
+            samples = super().sample(batch_size, env=env)
+        else:
+            # QPA's hybrid replay: a share of the minibatch from the most recent episodes, the rest uniform
+            recent = self._get_samples(self.recent_rows[np.random.randint(0, len(self.recent_rows), size=n_recent)], env=env)
+            if n_recent == batch_size:
+                samples = recent
+            else:
+                uniform = super().sample(batch_size - n_recent, env=env)
+                samples = concatenate_samples(recent, uniform)
         if self.intrinsic_reward is None:
             return samples
         # Unsupervised pre-training: the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
@@ -288,9 +308,7 @@ class DualReplayBuffer(ReplayBuffer):
         if n_synthetic == batch_size:
             return synthetic
         real = self.real.sample(batch_size - n_synthetic, env=env)
-        # field by field, synthetic rows first; a field SB3 leaves None (n-step discounts) stays None
-        fields = [th.cat([s, r]) if s is not None and r is not None else None for s, r in zip(synthetic, real, strict=True)]
-        return ReplayBufferSamples(*fields)  # type: ignore[arg-type]
+        return concatenate_samples(synthetic, real)  # synthetic rows first
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
         return self.real._get_samples(batch_inds, env=env)

@@ -82,15 +82,36 @@ def segment_starts(buffer: PreferenceReplayBuffer, segment_length: int, max_epis
     return np.concatenate(starts), np.concatenate(envs)
 
 
+def recent_rows(buffer: PreferenceReplayBuffer, max_episodes: int) -> np.ndarray:
+    """
+    Buffer rows of the ``max_episodes`` most recent episodes (each environment's ``ceil(max_episodes / n_envs)``, the
+    running one included), from the oldest of them to the newest row: where queries come from, and QPA's hybrid
+    replay draws its share of each minibatch.
+    """
+    rows = chronological_rows(buffer)
+    episodes_per_env = -(-max_episodes // buffer.n_envs)
+    first = len(rows)
+    for env_idx in range(buffer.n_envs):
+        ends = np.flatnonzero(buffer.dones[rows, env_idx] > 0)
+        ends = ends[ends < len(rows) - 1]  # an episode that ended at the last row is done: the next one is running
+        # the recent episodes start after the end of episode number -(episodes_per_env) counting the running one
+        first = min(first, int(ends[-episodes_per_env]) + 1 if len(ends) >= episodes_per_env else 0)
+    return rows[first:]
+
+
 def sample_segment_pairs(
     buffer: PreferenceReplayBuffer,
     n_pairs: int,
     segment_length: int,
     max_episodes: int,
     rng: np.random.Generator,
+    render_states: bool = True,
 ) -> SegmentPairs | None:
     """
     ``n_pairs`` pairs of segments drawn uniformly (with replacement) from the valid starts of ``segment_starts``.
+
+    :param render_states: copy the simulator states recorded beside the transitions, if any (a teacher that watches
+        the segments needs them; pairs no one will see do not)
 
     :return: the pairs, or ``None`` when no segment fits in the stored episodes yet
     """
@@ -108,7 +129,7 @@ def sample_segment_pairs(
         actions=buffer.actions[steps, env_idx],
         true_rewards=buffer.true_rewards[steps, env_idx],
         return_scale=float(np.mean(window_rewards) * segment_length),
-        render_states=None if buffer.render_states is None else buffer.render_states[steps, env_idx],
+        render_states=None if buffer.render_states is None or not render_states else buffer.render_states[steps, env_idx],
     )
 
 
@@ -145,7 +166,7 @@ def kcenter_greedy(candidates: np.ndarray, centers: np.ndarray, n: int) -> np.nd
 
 def pair_features(observations: np.ndarray) -> np.ndarray:
     """A pair's k-center features, as in B-Pref: the observations of both segments, flattened: (n, 2, k, d) -> (n, 2kd)."""
-    return observations.reshape(len(observations), -1)
+    return observations.reshape(len(observations), int(np.prod(observations.shape[1:])))
 
 
 def select_queries(

@@ -97,14 +97,18 @@ class RobustLabels:
     P[σ1 ≻ σ0], decides how it is used:
 
     - trusted (trained on as given) when ℓ < τ_lower = −ln ρ + α ρ + min(β_t s², 3), with ρ the largest divergence
-      among the labels trusted so far and s² their variance (running averages, rate 0.1), and β_t decreasing linearly
-      from ``beta_init`` to ``beta_min`` over ``beta_decay_epochs`` epochs (RIME: over its reward updates);
-    - flipped (trained on as 1 − μ) when ℓ > −ln ``flip_probability``: the ensemble is that sure of the opposite;
+      among the labels trusted so far and s² their variance (running averages over epochs, rate 0.1), and β_t
+      decreasing linearly from ``beta_init`` to ``beta_min`` over ``beta_decay_epochs`` epochs;
+    - flipped (trained on as 1 − μ) when ℓ > −ln ``flip_probability``: the ensemble is that sure of the opposite
+      (never a 0.5 "equally good" label, which flipping leaves as it is);
     - left out of that epoch otherwise.
 
-    RIME's defaults (its walker-walk configuration): α = 1, β from 2 to 0.1, flip below probability 0.001.
-    RIME also warm-starts the reward model on the pre-training phase's intrinsic reward; that part is not done here.
-    The running values persist across feedback sessions (they are saved with the model).
+    The first epoch trusts every label (RIME starts ρ at 0: its first threshold is unbounded), so an untrained model
+    flips nothing. An epoch that would keep no label trains on all of them as given. Defaults: RIME's DMC and
+    Meta-World runs (α = 0.5, β from 3 to 1 over 60 epochs, flip below probability 0.001); RIME keeps the variance
+    of all trusted divergences by count, here it is a running average like ρ. RIME also warm-starts the reward model
+    on the pre-training phase's intrinsic reward; that part is not done here. The running values persist across
+    feedback sessions (they are saved with the model).
 
     :param alpha: α, the weight of ρ in the base threshold
     :param beta_init: β at the first epoch
@@ -113,10 +117,10 @@ class RobustLabels:
     :param flip_probability: a label whose predicted probability is below this is flipped
     """
 
-    alpha: float = 1.0
-    beta_init: float = 2.0
-    beta_min: float = 0.1
-    beta_decay_epochs: int = 100
+    alpha: float = 0.5
+    beta_init: float = 3.0
+    beta_min: float = 1.0
+    beta_decay_epochs: int = 60
     flip_probability: float = 0.001
     # the running values (not settings)
     epochs: int = field(default=0, init=False)
@@ -144,17 +148,21 @@ class RobustLabels:
         """β_t: from ``beta_init`` down to ``beta_min``, linearly over ``beta_decay_epochs`` epochs."""
         return max(self.beta_min, self.beta_init - (self.beta_init - self.beta_min) * self.epochs / self.beta_decay_epochs)
 
-    def select(self, divergence: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def select(self, divergence: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """
-        One epoch's choice: (trusted, flipped) boolean masks of the labels with divergences ``divergence``; the running
-        values are updated from the trusted ones.
+        One epoch's choice: (trusted, flipped) boolean masks of the labels μ ``labels`` with divergences
+        ``divergence``; the running values are updated from the trusted ones.
         """
-        if self.max_divergence is None:  # the first epoch: the untrained model's divergences are the reference
-            self.max_divergence = float(divergence.max(initial=np.log(2.0)))
-        rho = max(self.max_divergence, 1e-8)
-        lower = -np.log(rho) + self.alpha * rho + min(self.beta * self.divergence_variance, 3.0)
-        flipped = divergence > -np.log(self.flip_probability)
-        trusted = (divergence < lower) & ~flipped
+        if self.max_divergence is None:  # the first epoch trusts every label, and sets ρ from them
+            trusted, flipped = np.ones(len(divergence), bool), np.zeros(len(divergence), bool)
+            self.max_divergence = 0.0
+        else:
+            rho = max(self.max_divergence, 1e-8)
+            lower = -np.log(rho) + self.alpha * rho + min(self.beta * self.divergence_variance, 3.0)
+            flipped = (divergence > -np.log(self.flip_probability)) & (labels != 0.5)
+            trusted = (divergence < lower) & ~flipped
+            if not (trusted | flipped).any():  # nothing kept: this epoch trains on every label as given
+                trusted = np.ones(len(divergence), bool)
         if trusted.any():
             self.max_divergence = 0.9 * self.max_divergence + 0.1 * float(divergence[trusted].max())
             self.divergence_variance = 0.9 * self.divergence_variance + 0.1 * float(divergence[trusted].var())
@@ -409,7 +417,7 @@ class RewardEnsemble(nn.Module):
         for epoch in range(1, max_epochs + 1):  # noqa: B007 (returned: the epochs run)
             used = np.arange(n)
             if robust_labels is not None:
-                trusted, flipped = robust_labels.select(self.label_divergence(inputs, all_labels))
+                trusted, flipped = robust_labels.select(self.label_divergence(inputs, all_labels), dataset.labels)
                 used = np.flatnonzero(trusted | flipped)
                 labels = th.where(th.as_tensor(flipped, device=self.device), 1.0 - all_labels, all_labels)
             orders = np.stack([used[rng.permutation(len(used))] for _ in range(self.n_members)])

@@ -51,8 +51,8 @@ class FeedbackCallback(BaseCallback):
         if not model.publish_queries():
             model.next_feedback_step = model.num_timesteps + model.segment_length
             return True
-        model.next_feedback_step = model.num_timesteps + model.feedback_interval
         if not model.asynchronous_feedback:
+            model.next_feedback_step = model.num_timesteps + model.feedback_interval
             self._take_answers()
         return True
 
@@ -61,7 +61,12 @@ class FeedbackCallback(BaseCallback):
             self._take_answers()
 
     def _take_answers(self) -> None:
-        first = self.model.in_pretraining
-        self.model.take_answers()
+        model = self.model
+        first, published = model.in_pretraining, model.feedback_published_step
+        model.take_answers()
+        if model.asynchronous_feedback and published is not None:
+            # scheduled from the session's publication, once it is answered: a checkpoint taken while a session is
+            # open (which does not hold it) publishes it again at once when resumed
+            model.next_feedback_step = published + model.feedback_interval
         if first:
-            self.model.end_pretraining()
+            model.end_pretraining()

@@ -1,9 +1,10 @@
 import os
+import threading
 import time
 import warnings
 from collections.abc import Iterable
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
@@ -29,6 +30,7 @@ from sb3_pride.common.queries import (
     SegmentPairs,
     chronological_rows,
     pair_features,
+    recent_rows,
     sample_segment_pairs,
     select_queries,
 )
@@ -50,6 +52,7 @@ class PendingFeedback:
     inputs: np.ndarray
     labels: np.ndarray
     n_journal_entries: int
+    journal_length: int
     new_inputs: np.ndarray
     answers: "Future[np.ndarray]"
     published_step: int
@@ -122,6 +125,10 @@ class PEBBLE(SAC):
         pseudo-labels (``sb3_pride.common.reward_model.PseudoLabels``). True: SURF's walker-walk settings; a dict:
         ``PseudoLabels``' settings (``threshold``, ``ratio``, ``weight``, ``unlabeled_per_label``, ``max_unlabeled``).
         False: labels only (PEBBLE)
+    :param hybrid_replay: QPA's hybrid experience replay (Hu et al., ICLR 2024): after pre-training and while queries
+        remain to be asked, this share of each SAC minibatch is drawn from the ``max_query_episodes`` most recent
+        episodes, where the queries come from, so that the policy learns most where r̂ is being taught (QPA: 0.5,
+        with ``max_query_episodes=10``: its policy-aligned queries). 0: uniform sampling (PEBBLE)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
     :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
         or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
@@ -134,7 +141,8 @@ class PEBBLE(SAC):
         in (preferences added, r̂ retrained, buffer relabeled) at the first step after the last of them is in, and the
         next session is published only then, at the earliest. Pre-training goes on until the first session's answers
         are in. ``learn()`` waits for a session still open when it ends. The steps made on the older reward are
-        logged (``feedback/steps_awaiting``)
+        logged (``feedback/steps_awaiting``). The step at which answers are taken in depends on the teacher's pace,
+        so runs are not reproducible from their seed alone
     """
 
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
@@ -193,6 +201,7 @@ class PEBBLE(SAC):
         temporal_crop: tuple[int, int] | None = None,
         robust_labels: bool | dict[str, Any] = False,
         pseudo_labels: bool | dict[str, Any] = False,
+        hybrid_replay: float = 0.0,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
         asynchronous_feedback: bool = False,
@@ -221,6 +230,7 @@ class PEBBLE(SAC):
         temporal_crop = check_temporal_crop(temporal_crop, segment_length)
         make_option("robust_labels", robust_labels, RobustLabels)  # checked before anything is made
         make_option("pseudo_labels", pseudo_labels, PseudoLabels)
+        check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
 
         if reward_early_stop is not None:
             check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
@@ -297,12 +307,12 @@ class PEBBLE(SAC):
         #: RIME's running selection of trusted labels (None: every label as given), saved with the model
         self.label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
         self.pseudo_labels = pseudo_labels if isinstance(pseudo_labels, dict) else bool(pseudo_labels)
+        self.hybrid_replay = float(hybrid_replay)
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.asynchronous_feedback = bool(asynchronous_feedback)
         #: the published feedback session whose answers are awaited (asynchronous feedback; never saved)
         self._pending_feedback: PendingFeedback | None = None
-        self._teacher_thread: ThreadPoolExecutor | None = None
         self._teacher_records: deque[tuple[str, float]] = deque()  # what the teacher asked to log (thread-safe appends)
         #: env steps the agent made while a published session's answers were awaited, over the run
         self.steps_awaiting_feedback = 0
@@ -420,6 +430,7 @@ class PEBBLE(SAC):
         return self.feedback_sessions == 0
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
+        self.update_hybrid_replay()
         super().train(gradient_steps, batch_size)
         self._train_calls += 1
         if not self.in_pretraining and self._train_calls % self.diagnostic_interval == 0:
@@ -457,6 +468,17 @@ class PEBBLE(SAC):
         critic_loss = 0.5 * sum(th.nn.functional.mse_loss(q, target) for q in current)
         return float(critic_loss), float(th.cat(current, dim=1).mean())
 
+    def update_hybrid_replay(self) -> None:
+        """
+        QPA's hybrid replay (``hybrid_replay``): after pre-training and while queries remain to be asked, that share of
+        each SAC minibatch comes from the ``max_query_episodes`` most recent episodes (where the queries come from);
+        otherwise SAC samples uniformly.
+        """
+        share = getattr(self, "hybrid_replay", 0.0)  # models saved by 0.1.0 have none
+        active = share > 0 and not self.in_pretraining and self.feedback_asked < self.max_feedback
+        self.real_buffer.recent_share = share if active else 0.0
+        self.real_buffer.recent_rows = recent_rows(self.real_buffer, self.max_query_episodes) if active else None
+
     def update_reward_source(self) -> None:
         """SAC's reward: r_int (Eq. 3) while pre-training, r̂ (Eq. 1) from the first feedback session on."""
         self.real_buffer.intrinsic_reward = self.state_entropy if self.in_pretraining else None
@@ -479,6 +501,8 @@ class PEBBLE(SAC):
 
     def _shift_schedules(self, steps: int) -> None:
         self.next_feedback_step = max(0, self.next_feedback_step + steps)
+        if self._pending_feedback is not None:
+            self._pending_feedback.published_step += steps
 
     def _init_callback(self, callback: MaybeCallback, progress_bar: bool = False) -> BaseCallback:
         # the algorithm's own callbacks run first, then the user's
@@ -591,6 +615,7 @@ class PEBBLE(SAC):
         n_queries = min(self.queries_per_session, self.max_feedback - self.feedback_asked)
         # several annotators' answers to one query are one answer: their mean μ (journal.merge_answers)
         raw = self.journaled_answers(session)
+        journal_length = len(self.journal_history())  # before the teacher journals this session's new answers
         journaled = merge_answers(raw)[:n_queries]
         kept = {entry.id for entry in journaled}
         candidates = self.choose_queries(n_queries - len(journaled))
@@ -600,9 +625,8 @@ class PEBBLE(SAC):
         if len(candidates) == 0:
             answers.set_result(np.zeros(0))
         elif asynchronous:
-            if self._teacher_thread is None:
-                self._teacher_thread = ThreadPoolExecutor(max_workers=1, thread_name_prefix="teacher")
-            answers = self._teacher_thread.submit(self.ask_teacher, candidates)
+            # a daemon thread: a person who never answers does not keep the process alive after an interrupt
+            threading.Thread(target=self._answer_in_thread, args=(candidates, answers), name="teacher", daemon=True).start()
         else:
             answers.set_result(self.ask_teacher(candidates))  # a teacher's error is raised here: nothing recorded
         self._pending_feedback = PendingFeedback(
@@ -610,12 +634,26 @@ class PEBBLE(SAC):
             inputs=np.stack([entry.inputs for entry in journaled]) if journaled else candidates.inputs[:0],
             labels=np.array([entry.label for entry in journaled], dtype=np.float64),
             n_journal_entries=sum(entry.id in kept for entry in raw),
+            journal_length=journal_length,
             new_inputs=candidates.inputs,
             answers=answers,
             published_step=self.num_timesteps,
             published_time=time.monotonic(),
         )
         return True
+
+    def _answer_in_thread(self, candidates: SegmentPairs, answers: "Future[np.ndarray]") -> None:
+        """The teacher's thread (asynchronous feedback): its labels, or its error, go into ``answers``."""
+        answers.set_running_or_notify_cancel()
+        try:
+            answers.set_result(self.ask_teacher(candidates))
+        except BaseException as error:  # raised by take_answers() in the model's thread
+            answers.set_exception(error)
+
+    @property
+    def feedback_published_step(self) -> int | None:
+        """The env step at which the open feedback session was published (None: no session is open)."""
+        return None if self._pending_feedback is None else self._pending_feedback.published_step
 
     def take_answers(self) -> None:
         """
@@ -628,9 +666,13 @@ class PEBBLE(SAC):
             raise RuntimeError("no feedback session is open: publish_queries() first")
         try:
             new_labels = pending.answers.result()
+        except BaseException:
+            if pending.answers.done():  # the teacher failed: the session is over, nothing of it recorded
+                self._pending_feedback = None
+            raise  # an interrupt while waiting leaves the session open: the teacher may still answer
         finally:
-            self._pending_feedback = None
             self._log_teacher_records()
+        self._pending_feedback = None
         interactive = isinstance(self.resolve_teacher(), InteractiveTeacher)
         # the journal is written before the answers are used: a crash from here on loses none of them
         if not interactive:
@@ -641,7 +683,8 @@ class PEBBLE(SAC):
                 ]
             )
         if interactive and self.preference_journal is not None:
-            self.journal_entries = len(self.journal_history())  # every annotator's answers, and none taken back
+            # every answer the teacher journaled during the session (several per query from several annotators)
+            self.journal_entries += pending.n_journal_entries + len(self.journal_history()) - pending.journal_length
         else:
             self.journal_entries += pending.n_journal_entries + len(new_labels)
         inputs = np.concatenate([pending.inputs, pending.new_inputs])
@@ -718,7 +761,9 @@ class PEBBLE(SAC):
     def unlabeled_pairs(self, pseudo_labels: PseudoLabels) -> np.ndarray | None:
         """SURF's unlabelled pairs for a feedback session's training: ``unlabeled_per_label`` per label, drawn as queries."""
         n = min(pseudo_labels.unlabeled_per_label * len(self.preferences), pseudo_labels.max_unlabeled)
-        pairs = sample_segment_pairs(self.real_buffer, n, self.segment_length, self.max_query_episodes, self.preference_rng)
+        pairs = sample_segment_pairs(
+            self.real_buffer, n, self.segment_length, self.max_query_episodes, self.preference_rng, render_states=False
+        )
         return None if pairs is None else pairs.inputs
 
     def learn_reward(self) -> None:
@@ -813,9 +858,10 @@ class PEBBLE(SAC):
             return
         history = self.journal_history()
         undone = undone_index(history, session, entry_id, annotator)
+        if undone is None or undone < self.journal_entries:  # an undo line that undoes nothing would break the journal
+            raise ValueError(f"no answer of feedback session {session} to take back (query {entry_id}, annotator {annotator})")
         PreferenceJournal(self.preference_journal).append_undo(session, entry_id, annotator)
-        if undone is not None:
-            del history[undone]
+        del history[undone]
 
     def _log_teacher_records(self) -> None:
         """What the teacher asked to log (``FeedbackContext.log``), into the model's logger."""
@@ -898,7 +944,7 @@ class PEBBLE(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         excluded = [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
-        excluded += ["_pending_feedback", "_teacher_thread", "_teacher_records"]  # a session in progress: the journal keeps it
+        excluded += ["_pending_feedback", "_teacher_records"]  # a session in progress: the journal keeps it
         if self._named_teacher is not None and not isinstance(self._named_teacher[1], ScriptedTeacher):
             # made again from its name when loaded (a person's page and port, a client): only B-Pref's scripted
             # teachers are saved, with their random state
