@@ -20,7 +20,7 @@ from sb3_pride import PEBBLE
 from sb3_pride.common.journal import PreferenceJournal, query_id
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.teachers import FeedbackContext
-from sb3_pride.human.web import GENERIC_INSTRUCTIONS, WebTeacher, _Query, _Session, default_instructions
+from sb3_pride.human.web import GENERIC_INSTRUCTIONS, WebTeacher, _Known, _Query, _Session, default_instructions
 
 pytest.importorskip("flask")
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
@@ -222,7 +222,8 @@ def test_a_timeout_skips_the_rest(open_session, capsys):
     teacher.timeout, session = 0.3, teacher._session
     teacher.state()
     assert teacher.answer("a", 1) == (200, "recorded")
-    assert teacher._wait_for_answers() is session and teacher._session is None
+    teacher._wait_for_answers()
+    assert teacher._session is None
     assert session.queries[0].label() == 1 and np.isnan(session.queries[1].label())
     assert len(teacher.model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
     assert "timeout, 1 queries skipped" in capsys.readouterr().out
@@ -243,7 +244,8 @@ def test_only_the_question_shown_is_answered_and_nothing_reaches_a_closed_sessio
     assert status == 403 and "not the one shown to you" in json.loads(reply)["error"]
     assert teacher.answer("a", 0)[0] == 200
     assert teacher.answer("b", 1)[0] == 200
-    session = teacher._wait_for_answers()  # all answered: the session closes
+    session = teacher._session
+    teacher._wait_for_answers()  # all answered: the session closes
     assert [q.label() for q in session.queries] == [0, 1] and teacher._session is None
     status, _, _ = request(teacher.url + "api/undo", {})  # a late Backspace
     assert status == 409
@@ -440,6 +442,161 @@ def test_ask_from_a_worker_thread_renders_real_clips(tiny_kwargs, tmp_path):
     with av.open(str(tmp_path / "clips" / Path(first["left"]).name)) as container:
         frames = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
     assert len(frames) == 10 and frames[0].shape == (24, 32, 3) and frames[0].std() > 5  # a picture, not a blank
+
+
+# known-answer questions, the log, what other sites may send ----------------------------------------------------------
+def test_known_answer_questions_look_like_any_other_and_their_first_answer_counts(serve, tmp_path, monkeypatch):
+    """One person, true-reward known answers of feedback session 1 shown again in the next: nothing on the page moves
+    differently on them, their clips carry no ETag of their own, and an undo does not change their score."""
+    monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
+    teacher = serve(known_answer_rate=0.6, seed=0)
+    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
+    first = make_pairs(8)
+    thread, result = ask_in_thread(teacher, first, run.context(1))
+    while (shown := page.shown()) is not None:
+        assert page.answer(shown, true_answer(first, teacher._session.find(shown).inputs)) == 200
+    finish(thread, result)
+    assert (
+        teacher._known and teacher.agreement()["anonymous"]["known_answers"] == 0
+    )  # none shown in the first feedback session
+    second = make_pairs(8, seed=1)
+    thread, result = ask_in_thread(teacher, second, run.context(2))
+    known_seen = 0
+    while (state := page.state())["query"] is not None:
+        shown = state["query"]["id"]
+        assert state["budget"] == {"max": 100, "asked": 8}  # fixed for the session
+        assert all(row[key] is None for row in state["team"] for key in ("known_answers", "known_answer_agreement"))
+        question = teacher._session.find(shown)
+        clip = request(teacher.url + state["query"]["left"].lstrip("/"))
+        assert clip[0] == 200 and "ETag" not in clip[1] and clip[1]["Last-Modified"]
+        if question.known is None:
+            assert page.answer(shown, true_answer(second, question.inputs)) == 200
+        else:
+            known_seen += 1
+            assert page.answer(shown, 1 - question.known) == 200  # wrong first...
+            assert page.state()["answered"] == state["answered"] + 1
+            assert page.undo() == 200 and page.shown() == shown
+            assert page.answer(shown, question.known) == 200  # ...then right: the first answer is the one scored
+        after = page.state()
+        assert after["answered"] == state["answered"] + 1 or after["session"] is None
+    labels = finish(thread, result)
+    assert known_seen >= 1 and not np.isnan(labels).any()
+    stats = teacher.agreement()["anonymous"]
+    assert stats["known_answers"] == known_seen and stats["known_answer_agreement"] == 0
+    assert stats["answers"] == 16 + known_seen and len(run.journal.read()) == 16  # known ones are not journaled
+    between = page.state()["team"][0]
+    assert between["known_answers"] == known_seen and between["session"] == 0  # shown once the session is over
+
+
+def test_tokens_never_reach_the_server_log(serve, caplog, capfd):
+    teacher = serve(annotators=["ana"])
+    token = teacher.links["ana"].split("token=")[1]
+    capfd.readouterr()
+    with caplog.at_level("INFO", logger="werkzeug"):
+        assert request(teacher.url + f"clips/missing.mp4?token={token}")[0] == 404
+        assert request(teacher.url + f"api/answer?token={token}", {"id": "x"})[0] == 400
+        assert request(teacher.url + f"clips/x.mp4?other=1&token={token}&b=2")[0] == 404
+    time.sleep(0.2)  # the server's thread logs after it answered
+    out, err = capfd.readouterr()
+    logged = caplog.text + out + err
+    assert "clips/missing.mp4?token=..." in logged and " 404 " in logged
+    assert token not in logged
+
+
+def test_tokens_are_required_beyond_localhost_whenever_the_server_starts(tmp_path):
+    teacher = WebTeacher(port=0)
+    teacher.host = "0.0.0.0"  # set after construction
+    with pytest.raises(ValueError, match="annotators"):
+        teacher._start_server()
+    assert teacher._server is None
+    loaded = pickle.loads(pickle.dumps(WebTeacher(port=0)))
+    loaded.__setstate__({**loaded.__getstate__(), "host": "0.0.0.0"})  # as a teacher saved with another host
+    with pytest.raises(ValueError, match="annotators"):
+        loaded._start_server()
+
+
+def test_true_reward_known_answers_need_a_return_scale():
+    teacher = WebTeacher(port=0, known_answer_rate=0.5)
+    rewards = np.array([[1.0, 1.0], [1.0, 1.001], [0.0, 3.0], [2.0, 0.0]])[..., None].repeat(4, axis=-1)
+
+    def pairs(rewards: np.ndarray, return_scale: float) -> SegmentPairs:
+        return SegmentPairs(np.zeros((4, 2, 4, 3)), np.zeros((4, 2, 4, 1)), rewards, return_scale, np.zeros((4, 2, 4, 1)))
+
+    # return_scale ~ 0: the margin is measured in the spread of the pairs' returns instead, so 0.004 is not clear
+    assert teacher._known_from_reward(pairs(rewards, 1e-12)) == [None, None, 1.0, 0.0]
+    assert teacher._known_from_reward(pairs(rewards, 1e-3)) == [None, None, 1.0, 0.0]
+    flat = np.ones_like(rewards) + 1e-15 * rewards
+    assert teacher._known_from_reward(pairs(flat, 0.0)) == [None] * 4  # no scale at all: no known answer
+
+
+def test_a_report_that_cannot_be_written(serve, tmp_path, capsys):
+    (tmp_path / "a_file").write_text("")
+    for path in (tmp_path, tmp_path / "a_file" / "report.json"):
+        with pytest.raises(ValueError, match="report_path"):
+            WebTeacher(port=0, report_path=path)
+    report = tmp_path / "new" / "report.json"
+    teacher = serve(report_path=report)
+    assert report.parent.is_dir()
+    report.mkdir()  # taken by a folder after the teacher was made: the write fails
+    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
+    pairs = make_pairs(2)
+    thread, result = ask_in_thread(teacher, pairs, run.context())
+    while (shown := page.shown()) is not None:
+        assert page.answer(shown, 1) == 200
+    np.testing.assert_array_equal(finish(thread, result), [1, 1])  # the session's answers are given to the model
+    assert "could not be written" in capsys.readouterr().out
+    teacher.close()  # warns again, and stops the server all the same
+    assert teacher._server is None and "could not be written" in capsys.readouterr().out
+
+
+def test_other_sites_cannot_post_or_rebind(open_session):
+    """A form of another site (no JSON), a page reached under another name (DNS rebinding): refused, nothing recorded."""
+    teacher = open_session
+    assert teacher.state()["query"]["id"] == "a"
+    form = {"Content-Type": "application/x-www-form-urlencoded"}
+    assert request(teacher.url + "api/answer", b"id=a&label=1", form)[0] == 415
+    assert request(teacher.url + "api/answer", b'{"id": "a", "label": 1}', {"Content-Type": "text/plain"})[0] == 415
+    assert request(teacher.url + "api/answer", {"id": "a", "label": 1})[0] == 200
+    assert request(teacher.url + "api/undo", b"", form)[0] == 415
+    assert request(teacher.url + "api/undo", b"")[0] == 400  # JSON, but no object
+    rebound = {"Host": f"evil.example:{teacher.port}"}
+    assert request(teacher.url + "api/undo", {}, rebound)[0] == 403
+    assert request(teacher.url + "api/state", None, rebound)[0] == 403
+    assert request(teacher.url + "clips/a-left.mp4", None, rebound)[0] == 403
+    assert [entry.label for entry in teacher.model.journal_history()] == [1]  # the one JSON answer, not undone
+    for host in (f"localhost:{teacher.port}", f"[::1]:{teacher.port}", "127.0.0.1"):
+        assert request(teacher.url + "api/state", None, {"Host": host})[0] == 200, host
+
+
+def test_an_error_in_a_route_is_a_json_500(open_session, monkeypatch):
+    def broken(annotator=None):
+        raise RuntimeError("broken")
+
+    monkeypatch.setattr(open_session, "state", broken)
+    status, _, body = request(open_session.url + "api/state")
+    assert status == 500 and "RuntimeError: broken" in json.loads(body)["error"]
+
+
+def test_known_pairs_are_never_shown_to_who_made_them(serve):
+    """A majority's pair is never a known-answer question for its voters, nor a pair one answered, with annotators."""
+    teacher = serve(annotators=["ana", "ben", "cal"], answers_per_query=2, known_answer_rate=0.5)
+    inputs = np.zeros((2, 4, 3))
+    majority = _Known(query_id(inputs), inputs, ("m-left.mp4", "m-right.mp4"), 1.0, "majority", frozenset({"ana", "ben"}))
+    teacher._known.append(majority)
+    teacher._seen[majority.pair] = {"ana", "ben"}
+    reward = _Known(query_id(inputs + 1), inputs + 1, ("r-left.mp4", "r-right.mp4"), 0.0, "true reward")
+    teacher._known.append(reward)
+    teacher._seen[reward.pair] = {"cal"}
+    session = _Session(2, [], 0, Run(Path("/dev/null")).context(2))
+    teacher._seen[majority.pair].discard("ana")  # even were her answer taken back
+    assert teacher._known_question(session, "ana").pair == reward.pair
+    assert teacher._known_question(session, "ana") is None  # each pair once a session, the majority never
+    assert teacher._known_question(session, "cal").pair == majority.pair
+    assert teacher._known_question(session, "cal") is None  # the true-reward pair is hers already: not shown again
+    alone = serve(known_answer_rate=0.5)
+    alone._known.append(reward)
+    alone._seen[reward.pair] = {"anonymous"}
+    assert alone._known_question(session, "anonymous").pair == reward.pair  # one person: shown again
 
 
 # in a real browser ---------------------------------------------------------------------------------------------------

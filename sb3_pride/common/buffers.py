@@ -128,12 +128,13 @@ class PreferenceReplayBuffer(ReplayBuffer):
             self.timeouts[last, running] = 1
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        n_recent = round(self.recent_share * batch_size) if self.recent_rows is not None and len(self.recent_rows) else 0
-        if n_recent == 0:
+        rows = self.recent_rows
+        n_recent = round(self.recent_share * batch_size) if rows is not None and len(rows) else 0
+        if rows is None or n_recent == 0:
             samples = super().sample(batch_size, env=env)
         else:
             # QPA's hybrid replay: a share of the minibatch from the most recent episodes, the rest uniform
-            recent = self._get_samples(self.recent_rows[np.random.randint(0, len(self.recent_rows), size=n_recent)], env=env)
+            recent = self._get_samples(rows[np.random.randint(0, len(rows), size=n_recent)], env=env)
             if n_recent == batch_size:
                 samples = recent
             else:

@@ -154,7 +154,7 @@ def kcenter_greedy(candidates: np.ndarray, centers: np.ndarray, n: int) -> np.nd
         nearest = th.cdist(points, th.as_tensor(centers, dtype=th.float32)).min(dim=1).values
     else:
         nearest = th.full((len(points),), float("inf"))
-    picked = []
+    picked: list[int] = []
     for _ in range(n):
         # without centers, the first pick is the first candidate (they are random already)
         index = int(th.argmax(nearest)) if th.isfinite(nearest).any() or picked else 0

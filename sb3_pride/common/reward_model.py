@@ -420,8 +420,9 @@ class RewardEnsemble(nn.Module):
                 trusted, flipped = robust_labels.select(self.label_divergence(inputs, all_labels), dataset.labels)
                 used = np.flatnonzero(trusted | flipped)
                 labels = th.where(th.as_tensor(flipped, device=self.device), 1.0 - all_labels, all_labels)
-            orders = np.stack([used[rng.permutation(len(used))] for _ in range(self.n_members)])
-            orders = th.as_tensor(orders, device=self.device)
+            orders = th.as_tensor(
+                np.stack([used[rng.permutation(len(used))] for _ in range(self.n_members)]), device=self.device
+            )
             total_loss, correct, counted = 0.0, 0.0, 0.0
             for start in range(0, len(used), batch_size):
                 idx = orders[:, start : start + batch_size]  # (members, b): each member its own minibatch
@@ -434,7 +435,7 @@ class RewardEnsemble(nn.Module):
                 returns = rewards.sum(dim=-1)  # (members, b, 2): R̂0, R̂1 (Eq. 1)
                 # Eq. 2 for each member, summed over members
                 loss = preference_loss(returns, batch_labels) * self.n_members
-                if semi_supervised:
+                if unlabeled_t is not None and pseudo_labels is not None:
                     loss = loss + self.pseudo_label_loss(unlabeled_t, idx.shape[1], pseudo_labels, rng, temporal_crop)
                 self.optimizer.zero_grad()
                 loss.backward()

@@ -62,7 +62,7 @@ def make_option(name: str, value: Any, settings_class: Callable[..., Any]) -> An
         raise ValueError(f"{name} must be True, False or a dict of {settings_class.__name__}'s settings, got {value!r}")
     import dataclasses
 
-    known = {field.name for field in dataclasses.fields(settings_class) if field.init}
+    known = {field.name for field in dataclasses.fields(settings_class) if field.init}  # type: ignore[arg-type]
     unknown = sorted(set(value) - known)
     if unknown:
         raise ValueError(f"{name}: unknown settings {unknown}; {settings_class.__name__} takes {sorted(known)}")

@@ -29,6 +29,7 @@ from collections import Counter
 from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass, field
+from datetime import datetime, timezone
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -60,6 +61,10 @@ QUEUE_LENGTH = 2
 RELEASE_AFTER = 90.0
 #: known-answer questions kept to draw from (the oldest are dropped beyond it)
 KNOWN_POOL_SIZE = 1000
+#: what the page's team table leaves out during a feedback session (it would change only on known-answer questions)
+HIDDEN_DURING_SESSION = ("known_answers", "known_answer_agreement", "compared_answers", "pairwise_agreement", "flagged")
+#: a true-reward known answer needs a return scale above this (``return_scale``, or the spread of the pairs' returns)
+MIN_RETURN_SCALE = 1e-8
 #: an annotator is flagged when fewer than this share of their known-answer questions agree with the known answer...
 FLAG_BELOW = 0.7
 #: ...over at least this many of them
@@ -131,6 +136,7 @@ class _Query:
     known: float | None = None  # a known-answer question: the answer it is checked against
     ready: bool = False  # its clips are written: it may be handed out
     answers: dict[str, float] = field(default_factory=dict)  # annotator -> μ (NaN: skipped)
+    scored: dict[str, "_Answer"] = field(default_factory=dict)  # known-answer question: annotator -> their first answer
     holders: set[str] = field(default_factory=set)  # annotators it is handed to who have not answered it yet
     pair: str = ""  # the journal's id of its inputs (query_id)
 
@@ -168,6 +174,7 @@ class _Known:
     clips: tuple[str, str]  # the clip files
     answer: float
     source: str  # "true reward" or "majority"
+    voters: frozenset[str] = frozenset()  # a majority's: the annotators who made it (never shown it as known)
 
 
 @dataclass(eq=False)
@@ -192,6 +199,10 @@ class _Session:
     def open(self, answers_per_query: int) -> list[_Query]:
         """The model's queries that still lack answers."""
         return [query for query in self.queries if len(query.answers) < answers_per_query]
+
+    def answers_given(self) -> int:
+        """The answers given in this session by everyone (known-answer questions and skips included, undone ones not)."""
+        return sum(len(answers) for answers in self.history.values())
 
 
 class _RenderThread:
@@ -252,13 +263,17 @@ class WebTeacher(InteractiveTeacher):
     tokens live as long as the teacher: a saved model keeps the settings, and a loaded one makes new tokens (new links,
     printed again; the old ones stop working).
 
-    Known-answer questions (``known_answer_rate > 0``) are pairs whose answer is known, shown again as extra
-    questions that only measure the annotator (their answers are neither journaled nor given to the model): pairs
-    whose true segment returns differ by at least ``known_answer_margin × return_scale`` (the pairs' own true rewards;
-    the answer is the higher return), and queries on which at least two annotators formed a majority for left or
-    right. ``agreement()`` reports, per annotator, the share of known answers they matched and how often they agreed
-    with the others on the pairs several answered; it is shown on the page, logged (``annotators/<name>/...``) and
-    written to ``report_path`` after every feedback session.
+    Known-answer questions (``known_answer_rate > 0``) are pairs whose answer is known, shown again as extra questions
+    that only measure the annotator (their answers are neither journaled nor given to the model): pairs whose true
+    segment returns differ by at least ``known_answer_margin × return_scale`` (the pairs' own true rewards; the answer
+    is the higher return; the spread of the returns stands in for a ``return_scale`` of about 0), and queries on which
+    at least two annotators formed a majority for left or right. ``agreement()`` reports, per annotator, the share of
+    known answers they matched and how often they agreed with the others on the pairs several answered; it is shown on
+    the page between feedback sessions (never during one: nothing there moves differently on a known-answer question),
+    logged (``annotators/<name>/...``) and written to ``report_path`` after every feedback session. A known-answer
+    question is scored by its first answer (an undo lets the annotator change what they see, not the score). With
+    ``annotators``, nobody is shown a known pair they answered (nor a majority they were part of); one person alone is
+    shown true-reward pairs of earlier sessions again.
 
     :param port: the TCP port of the page (0: any free port, read it back from ``.port``)
     :param host: the address to bind: 127.0.0.1 (this machine only; use ssh port forwarding from another one), or
@@ -281,7 +296,7 @@ class WebTeacher(InteractiveTeacher):
     :param known_answer_margin: a pair's answer is known from the true reward when its two undiscounted segment
         returns differ by at least this many ``return_scale`` (None: only majorities of annotators make known answers)
     :param report_path: a JSON file that receives ``agreement()`` (written whole) after every feedback session and on
-        ``close()``; None: none
+        ``close()`` (its folder is made now; a failed write is warned about, never raised); None: none
     :param seed: the seed of the draws that mix the known-answer questions in
     """
 
@@ -332,6 +347,7 @@ class WebTeacher(InteractiveTeacher):
             raise ValueError(f"known_answer_margin must be a number > 0 (return_scales) or None, got {known_answer_margin!r}")
         if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int)):
             raise ValueError(f"seed must be an integer or None, got {seed!r}")
+        report_file = None if report_path is None else self._check_report_path(report_path)
         from sb3_pride.human.render import use_headless_gl
 
         use_headless_gl()  # before the first env is made: MuJoCo reads MUJOCO_GL once
@@ -344,9 +360,23 @@ class WebTeacher(InteractiveTeacher):
         self.answers_per_query = answers_per_query
         self.known_answer_rate = float(known_answer_rate)
         self.known_answer_margin = None if known_answer_margin is None else float(known_answer_margin)
-        self.report_path = None if report_path is None else Path(report_path)
+        self.report_path = report_file
         self.seed = seed
         self._init_runtime()
+
+    @staticmethod
+    def _check_report_path(report_path: str | Path) -> Path:
+        """``report_path`` as a ``Path``, once its folder exists (made here) and it is not a folder itself."""
+        if not isinstance(report_path, (str, Path)) or str(report_path) == "":
+            raise ValueError(f"report_path must be a file path (str or Path) or None, got {report_path!r}")
+        path = Path(report_path)
+        if path.is_dir():
+            raise ValueError(f"report_path must be a file, got the folder {str(path)!r}")
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise ValueError(f"report_path {str(path)!r} cannot be written: its folder cannot be made ({error})") from None
+        return path
 
     @staticmethod
     def _check_annotators(annotators: Sequence[str] | None, host: str) -> list[str] | None:
@@ -470,6 +500,11 @@ class WebTeacher(InteractiveTeacher):
     def _start_server(self) -> None:
         if self._server is not None:
             return
+        if not self._tokens and not is_local(self.host):  # host set after construction, or an unpickled teacher
+            raise ValueError(
+                f"annotators must be given to serve on {self.host!r}: beyond this machine ({', '.join(LOCAL_HOSTS)}) "
+                f"each person needs a secret link, e.g. WebTeacher(host={self.host!r}, annotators=['ana', 'ben'])"
+            )
         from werkzeug.serving import make_server
 
         try:
@@ -487,7 +522,10 @@ class WebTeacher(InteractiveTeacher):
             print(f"WebTeacher: serving {self.url}; each annotator opens their own (secret) link:\n{lines}", flush=True)
 
     def close(self) -> None:
-        """Write the agreement report, stop the web server, close the renderer's env and remove the temporary clips."""
+        """
+        Write the agreement report (a failed write is only warned about), stop the web server, close the renderer's env
+        and remove the temporary clips.
+        """
         self._write_report()
         if self._renderer is not None:
             self._render_thread.call(self._renderer.close)
@@ -538,7 +576,9 @@ class WebTeacher(InteractiveTeacher):
                     f"WebTeacher asks one feedback session at a time: session {self._session.number} is still open"
                 )
             self._session = session
-            self._budget = {"max": context.budget, "asked": context.asked_before}
+            # the session's queries count as asked from its start: a budget that moved with each answer would tell
+            # the model's queries from known-answer questions
+            self._budget = {"max": context.budget, "asked": context.asked_before + len(queries)}
             self._condition.notify_all()
         where = f"{self.url} (each annotator through their own link)" if self._tokens else self.url
         print(f"WebTeacher: feedback session {session.number}, {len(queries)} queries: answer them at {where}", flush=True)
@@ -561,13 +601,26 @@ class WebTeacher(InteractiveTeacher):
     def _clip_urls(question_id: str) -> tuple[str, str]:
         return f"/clips/{question_id}-left.mp4", f"/clips/{question_id}-right.mp4"
 
+    @staticmethod
+    def _clip_files(query: _Query) -> tuple[str, str]:
+        """The names of the files of ``query``'s clips."""
+        return Path(query.clips[0]).name, Path(query.clips[1]).name
+
     def _known_from_reward(self, pairs: SegmentPairs) -> list[float | None]:
-        """Per pair, its answer when the true reward makes it clear (the higher return), else None."""
+        """
+        Per pair, its answer when the true reward makes it clear (the higher return), else None. The scale of the
+        margin is ``return_scale``, but at least the spread (std) of the pairs' segment returns: a ``return_scale`` of
+        about 0 would otherwise make any difference, however small, clear. None at all when both are about 0.
+        """
         if self.known_answer_rate == 0 or self.known_answer_margin is None or pairs.true_rewards is None:
             return [None] * len(pairs)
         returns = np.asarray(pairs.true_rewards, dtype=np.float64).sum(axis=-1)
+        spread = float(np.std(returns)) if np.isfinite(returns).all() else 0.0
+        scale = max(abs(float(pairs.return_scale)), spread)
+        if not scale > MIN_RETURN_SCALE:
+            return [None] * len(pairs)
         difference = returns[:, 1] - returns[:, 0]
-        clear = np.abs(difference) >= self.known_answer_margin * abs(float(pairs.return_scale))
+        clear = np.abs(difference) >= self.known_answer_margin * scale
         clear &= (difference != 0) & np.isfinite(difference)
         return [float(d > 0) if is_clear else None for d, is_clear in zip(difference, clear, strict=True)]
 
@@ -584,8 +637,7 @@ class WebTeacher(InteractiveTeacher):
             with self._condition:
                 query.ready = True
                 if answer is not None:
-                    names = (Path(query.clips[0]).name, Path(query.clips[1]).name)
-                    self._add_known(_Known(query.pair, query.inputs, names, answer, "true reward"))
+                    self._add_known(_Known(query.pair, query.inputs, self._clip_files(query), answer, "true reward"))
                 self._condition.notify_all()
 
     def _add_known(self, known: _Known) -> None:
@@ -595,8 +647,8 @@ class WebTeacher(InteractiveTeacher):
         self._known.append(known)
         del self._known[:-KNOWN_POOL_SIZE]
 
-    def _wait_for_answers(self) -> _Session:
-        """Wait until every query has its answers (or the timeout skips the rest), then close the session and return it."""
+    def _wait_for_answers(self) -> None:
+        """Wait until every query has its answers (or the timeout skips the rest), then close the session."""
         start = last_reminder = time.monotonic()
         k = self.answers_per_query
         with self._condition:
@@ -628,7 +680,6 @@ class WebTeacher(InteractiveTeacher):
             # closed in the same locked block: no answer or undo can reach it once it is over
             self._session = None
             self._condition.notify_all()
-            return session
 
     def _seen_summary(self, now: float) -> str:
         def ago(name: str) -> str:
@@ -667,8 +718,8 @@ class WebTeacher(InteractiveTeacher):
             return
         label, count = Counter(given).most_common(1)[0]
         if count >= 2 and 2 * count > len(given) and label in (0.0, 1.0):
-            names = (Path(query.clips[0]).name, Path(query.clips[1]).name)
-            self._add_known(_Known(query.pair, query.inputs, names, label, "majority"))
+            voters = frozenset(name for name, value in query.answers.items() if value == label)
+            self._add_known(_Known(query.pair, query.inputs, self._clip_files(query), label, "majority", voters))
 
     # who answers what -------------------------------------------------------------------------------------------
     def _person(self, annotator: str | None) -> str | None:
@@ -741,19 +792,23 @@ class WebTeacher(InteractiveTeacher):
 
     def _known_question(self, session: _Session, name: str) -> _Query | None:
         """
-        A known-answer question for ``name``: a known pair they have not answered (else one they answered in an
-        earlier session), never one of this session's queries that may still be handed to them.
+        A known-answer question for ``name``: a known pair they have not answered, never one of this session's queries
+        that may still be handed to them, never a majority they were part of. Only one person alone (no
+        ``annotators``) is shown, when no other is left, a true-reward pair they answered in an earlier session.
         """
         shown = session.known_shown.setdefault(name, set())
         fresh: list[_Known] = []
         again: list[_Known] = []
         for known in self._known:
-            if known.pair in shown:
+            if known.pair in shown or name in known.voters:
                 continue
             live = session.by_pair.get(known.pair)
             if live is not None and (name in live.answers or name in live.holders or live.taken < self.answers_per_query):
                 continue
-            (again if name in self._seen.get(known.pair, ()) else fresh).append(known)
+            if name not in self._seen.get(known.pair, ()):
+                fresh.append(known)
+            elif not self._tokens and known.source == "true reward" and live is None:
+                again.append(known)
         if not (fresh or again):
             return None
         known = self._rng.choice(fresh or again)
@@ -766,21 +821,25 @@ class WebTeacher(InteractiveTeacher):
         return question
 
     # answers ----------------------------------------------------------------------------------------------------
-    def answer(self, query_id: Any, label: Any, annotator: str | None = None) -> tuple[int, str]:
+    def answer(self, question_id: Any, label: Any, annotator: str | None = None) -> tuple[int, str]:
         """
-        Record ``annotator``'s answer to question ``query_id`` (the one shown to them); a refusal records nothing.
+        Record ``annotator``'s answer to question ``question_id`` (the one shown to them); a refusal records nothing.
+        A known-answer question is scored by the first answer the annotator gives it: after an undo, their new
+        answer is shown as theirs but changes no count of ``agreement()``.
 
+        :param question_id: the id of the question shown (``state()["query"]["id"]``)
+        :param label: μ: 0 (left preferred), 1 (right), 0.5 (equally good) or None (skip)
         :param annotator: who answers (None without ``annotators``: the one person)
-        :return: (HTTP status, message): 200 when recorded; 400 for a malformed label or id; 404 for a question that
-            is not in the open session; 409 for no open session, a question the annotator already answered or a query
-            that has all its answers; 403 for a question not shown to the annotator
+        :return: (HTTP status as an int, message as a str): 200 when recorded; 400 for a malformed label or id; 404
+            for a question that is not in the open session; 409 for no open session, a question the annotator already
+            answered or a query that has all its answers; 403 for a question not shown to the annotator
         """
         if not (
             label is None or (isinstance(label, (int, float)) and not isinstance(label, bool) and label in ALLOWED_LABELS)
         ):
             return 400, f"label must be 0 (left), 1 (right), 0.5 (equal) or null (skip), got {label!r}"
-        if not isinstance(query_id, str):
-            return 400, f"id must be the string id of the question shown, got {query_id!r}"
+        if not isinstance(question_id, str):
+            return 400, f"id must be the string id of the question shown, got {question_id!r}"
         with self._condition:
             name = self._person(annotator)
             if name is None:
@@ -789,16 +848,16 @@ class WebTeacher(InteractiveTeacher):
             session = self._session
             if session is None:
                 return 409, "no feedback session is open (it is over, or the next one has not begun)"
-            question = session.find(query_id)
+            question = session.find(question_id)
             if question is None:
-                return 404, f"no question {query_id!r} in feedback session {session.number}"
+                return 404, f"no question {question_id!r} in feedback session {session.number}"
             if name in question.answers:
-                return 409, f"question {query_id!r} is answered already by you (undo first)"
+                return 409, f"question {question_id!r} is answered already by you (undo first)"
             if question.known is None and len(question.answers) >= self.answers_per_query:
-                return 409, f"query {query_id!r} has all its answers already"
+                return 409, f"query {question_id!r} has all its answers already"
             handed = session.queues.get(name, [])
             if not handed or handed[0] is not question:
-                return 403, f"question {query_id!r} is not the one shown to you"
+                return 403, f"question {question_id!r} is not the one shown to you"
             value = math.nan if label is None else float(label)
             if question.known is None:
                 # journaled (flushed to disk) first, then kept, so that a failed write changes nothing
@@ -807,20 +866,25 @@ class WebTeacher(InteractiveTeacher):
             handed.pop(0)
             question.holders.discard(name)
             question.answers[name] = value
-            given = _Answer(name, question.pair, value, question.known)
-            self._answers.append(given)
+            given = question.scored.get(name)  # a known-answer question answered again after an undo: the first counts
+            if given is None:
+                given = _Answer(name, question.pair, value, question.known)
+                self._answers.append(given)
+                if question.known is not None:
+                    question.scored[name] = given
             self._seen.setdefault(question.pair, set()).add(name)
             session.history.setdefault(name, []).append((question, given))
-            self._changed(session)
+            self._changed()
             return 200, "recorded"
 
     def undo(self, annotator: str | None = None) -> tuple[int, str]:
         """
         Take back ``annotator``'s last answer of this session (and say so in the journal); the question is shown to
-        them again.
+        them again. An undone known-answer question keeps its score: the first answer given to it counts.
 
         :param annotator: whose answer (None without ``annotators``: the one person)
-        :return: (HTTP status, the question's id or why not): 200 when taken back, 409 when there is none to take back
+        :return: (HTTP status as an int, the question's id or why not as a str): 200 when taken back, 409 when there
+            is none to take back
         """
         with self._condition:
             name = self._person(annotator)
@@ -832,21 +896,22 @@ class WebTeacher(InteractiveTeacher):
                 session.context.retract(session.number, entry_id=question.pair, annotator=self._journal_name(name))
             session.history[name].pop()
             del question.answers[name]
-            self._answers.remove(given)
+            if question.known is None:
+                self._answers.remove(given)
+                if not any(other.annotator == name and other.pair == question.pair for other in self._answers):
+                    self._seen.get(question.pair, set()).discard(name)  # no answer of theirs to this pair is left
             handed = session.queues.setdefault(name, [])
             handed.insert(0, question)
             if question.known is None:
                 question.holders.add(name)
             while len(handed) > QUEUE_LENGTH:
                 handed.pop().holders.discard(name)
-            self._changed(session)
+            self._changed()
             return 200, question.id
 
-    def _changed(self, session: _Session) -> None:
-        """After an answer or an undo: progress and agreement are recounted, the waiting session hears of it."""
+    def _changed(self) -> None:
+        """After an answer or an undo: agreement is recounted, the waiting session hears of it."""
         self._stats = None
-        done = len(session.queries) - len(session.open(self.answers_per_query))
-        self._budget["asked"] = session.asked_before + done
         self._condition.notify_all()
 
     # agreement --------------------------------------------------------------------------------------------------
@@ -904,20 +969,29 @@ class WebTeacher(InteractiveTeacher):
         return stats
 
     def _write_report(self, report: dict[str, dict[str, Any]] | None = None) -> None:
-        """``agreement()`` to ``report_path``, written whole (a reader never sees half of it)."""
+        """``agreement()`` to ``report_path``, written whole (a reader never sees half of it); a failure is warned about."""
         if self.report_path is None:
             return
         with self._condition:
             report = report if report is not None else self._agreement()
             payload = {"time": time.time(), "known_answer_pairs": len(self._known), "annotators": report}
-        with self._report_lock, atomic_write_path(self.report_path) as temporary:
-            temporary.write_text(json.dumps(payload, indent=2) + "\n")
+        try:
+            with self._report_lock, atomic_write_path(self.report_path) as temporary:
+                temporary.write_text(json.dumps(payload, indent=2) + "\n")
+        except OSError as error:  # the session's answers are in: a report that cannot be written fails nothing else
+            print(f"WebTeacher: warning: the agreement report could not be written to {self.report_path}: {error}", flush=True)
 
     # the web page -----------------------------------------------------------------------------------------------
     def state(self, annotator: str | None = None) -> dict[str, Any]:
         """
         What ``annotator``'s page shows (handing them questions): the question shown and the next, the session's and
         the budget's progress, their answers and the team's, the instructions.
+
+        Nothing in it moves differently on a known-answer question: ``answered`` counts the session's answers (known
+        ones and skips included) out of ``total`` (with ``known_answer_rate > 0`` an estimate, ``estimate`` true, never
+        below ``answered``), the budget counts the session's queries as asked from its start, and the team's
+        agreement (``known_answer*``, ``compared_answers``, ``pairwise_agreement``, ``flagged``) is only shown between
+        feedback sessions (None during one; ``agreement()`` always has it).
 
         :param annotator: whose page (None without ``annotators``: the one person; with them, None is an overview
             that hands nothing out)
@@ -939,23 +1013,37 @@ class WebTeacher(InteractiveTeacher):
             else:
                 waiting = "all answered"
             stats = self._agreement()
-            team = [
-                {"name": other, "session": len(session.history.get(other, [])) if session else 0, **stats[other]}
-                for other in stats
-            ]
+            team = []
+            for other, row in stats.items():
+                row = dict(row)
+                if session is not None:  # during a session agreement would tell known-answer questions apart
+                    row.update({key: None for key in HIDDEN_DURING_SESSION})
+                team.append({"name": other, "session": len(session.history.get(other, [])) if session else 0, **row})
+            answered, total = (0, 0) if session is None else self._progress(session)
             return {
                 "session": None if session is None else session.number,
                 "you": annotator if self._tokens else None,
                 "query": None if not handed else {"id": handed[0].id, "left": handed[0].clips[0], "right": handed[0].clips[1]},
                 "next": None if len(handed) < 2 else {"left": handed[1].clips[0], "right": handed[1].clips[1]},
                 "waiting": waiting,
-                "answered": 0 if session is None else len(session.queries) - len(session.open(self.answers_per_query)),
-                "total": 0 if session is None else len(session.queries),
+                "answered": answered,
+                "total": total,
+                "estimate": self.known_answer_rate > 0,
                 "answers_per_query": self.answers_per_query,
                 "team": team,
                 "budget": dict(self._budget),
                 "instructions": self.page_instructions,
             }
+
+    def _progress(self, session: _Session) -> tuple[int, int]:
+        """
+        (answers given, answers expected) in ``session``: every answer counts, a known-answer question's too; the
+        expected ones are the queries' answers plus, at ``known_answer_rate``, known-answer questions in proportion.
+        Holds the lock.
+        """
+        answered = session.answers_given()
+        expected = math.ceil(len(session.queries) * self.answers_per_query / (1 - self.known_answer_rate))
+        return answered, max(expected, answered)
 
     def _token_owner(self, token: str) -> tuple[bool, str | None]:
         """(True, whose token) when ``token`` is an annotator's, (True, None) when none is needed, else (False, None)."""
@@ -966,17 +1054,42 @@ class WebTeacher(InteractiveTeacher):
                 return True, name
         return False, None
 
-    def _make_app(self) -> Any:
-        from flask import Flask, jsonify, request, send_from_directory
+    def _guard(self, app: Any) -> None:
+        """Answer errors as JSON, and refuse what no page of this teacher sends (other sites' requests)."""
+        from flask import jsonify, request
         from werkzeug.exceptions import HTTPException
-
-        app = Flask("sb3_pride.human", static_folder=None)
-        app.config["MAX_CONTENT_LENGTH"] = 64 * 1024  # an answer is a few bytes: a larger body is refused (413)
-        page = resources.files("sb3_pride.human").joinpath("static/index.html").read_text()
 
         @app.errorhandler(HTTPException)
         def http_error(error: HTTPException) -> Any:  # an unknown route, a wrong method, a body too large: JSON too
             return jsonify(error=error.description), error.code
+
+        @app.errorhandler(Exception)
+        def server_error(error: Exception) -> Any:  # a bug, or a journal that cannot be written: the page says so
+            app.logger.exception("WebTeacher: a request failed")
+            return jsonify(error=f"the training run failed to handle this request: {type(error).__name__}: {error}"), 500
+
+        @app.before_request
+        def guard() -> Any:
+            # without tokens, only this machine's names: a page of another site whose name resolves to 127.0.0.1
+            # (DNS rebinding) is refused
+            if not self._tokens and not is_local(_host_name(request.host)):
+                return jsonify(error=f"this page is served to this machine only: open {self.url}, not {request.host}"), 403
+            # a POST must be JSON, which another site's page cannot send without the browser asking first (CSRF)
+            if request.method == "POST" and not request.is_json:
+                return jsonify(error="a POST must carry a JSON body (Content-Type: application/json)"), 415
+            return None
+
+    def _make_app(self) -> Any:
+        from flask import Flask, jsonify, request, send_from_directory
+
+        app = Flask("sb3_pride.human", static_folder=None)
+        app.config["MAX_CONTENT_LENGTH"] = 64 * 1024  # an answer is a few bytes: a larger body is refused (413)
+        page = resources.files("sb3_pride.human").joinpath("static/index.html").read_text()
+        # every clip is served with this date and no ETag: a known-answer question's clips are the files of an older
+        # pair, and neither header may tell that
+        clip_date = datetime.now(timezone.utc).replace(microsecond=0)
+
+        self._guard(app)
 
         def annotator() -> tuple[bool, str | None]:
             """(True, who) for a request that carries a valid token or needs none, (False, None) otherwise."""
@@ -1012,6 +1125,8 @@ class WebTeacher(InteractiveTeacher):
             ok, name = annotator()
             if not ok:
                 return refused(401, no_token)
+            if not isinstance(request.get_json(silent=True), dict):
+                return refused(400, "expected a JSON object ({})")
             status, message = self.undo(name)
             return (jsonify(undone=message, state=self.state(name)), 200) if status == 200 else refused(status, message)
 
@@ -1019,13 +1134,26 @@ class WebTeacher(InteractiveTeacher):
         def clip(name: str) -> Any:
             if not annotator()[0]:
                 return refused(401, no_token)
-            # conditional=True: HTTP Range requests (seeking and looping video need them), ETag, 304s
             if not name.endswith(".mp4"):  # not a clip being written (.part)
                 return refused(404, f"no clip {name!r}")
             file = self._clip_alias.get(name, name)
-            return send_from_directory(self._clips_folder(), file, mimetype="video/mp4", conditional=True)
+            # conditional=True: HTTP Range requests (seeking and looping video need them) and 304s
+            return send_from_directory(
+                self._clips_folder(), file, mimetype="video/mp4", conditional=True, etag=False, last_modified=clip_date
+            )
 
         return app
+
+
+def _host_name(host: str) -> str:
+    """The name of a ``Host`` header without its port: ``"127.0.0.1:8000"`` -> ``"127.0.0.1"``, ``"[::1]:80"`` -> ``"::1"``."""
+    if host.startswith("["):
+        return host[1 : host.find("]")] if "]" in host else host
+    return host.rsplit(":", 1)[0] if host.count(":") == 1 else host
+
+
+#: a token in a logged request line: ``token=...`` in its query string
+_TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']*")
 
 
 def _quiet_request_handler() -> type:
@@ -1036,8 +1164,19 @@ def _quiet_request_handler() -> type:
         def log_request(self, code: Any = "-", size: Any = "-") -> None:
             if isinstance(code, int) and code < 400:  # an HTTPStatus is an int
                 return
-            self.requestline = re.sub(r"token=[^&\s]*", "token=...", self.requestline)
-            super().log_request(code, size)
+            # werkzeug builds the line from self.path: masked there for the call, then put back
+            path = getattr(self, "path", None)
+            if path is not None:
+                self.path = _TOKEN_IN_URL.sub(r"\1...", path)
+            try:
+                super().log_request(code, size)
+            finally:
+                if path is not None:
+                    self.path = path
+
+        def log(self, type: str, message: str, *args: Any) -> None:  # every line (errors too), masked as a whole
+            line = message % args if args else message
+            super().log(type, "%s", _TOKEN_IN_URL.sub(r"\1...", line))
 
     return QuietRequestHandler
 

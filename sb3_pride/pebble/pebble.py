@@ -786,9 +786,10 @@ class PEBBLE(SAC):
         self.logger.record("reward_model/loss", loss)
         self.logger.record("reward_model/accuracy", accuracy)
         self.logger.record("reward_model/epochs", epochs)
-        if getattr(self, "label_selection", None) is not None:
-            self.logger.record("reward_model/trusted_labels", self.label_selection.trusted)
-            self.logger.record("reward_model/flipped_labels", self.label_selection.flipped)
+        selection = getattr(self, "label_selection", None)
+        if selection is not None:
+            self.logger.record("reward_model/trusted_labels", selection.trusted)
+            self.logger.record("reward_model/flipped_labels", selection.flipped)
         self.logger.record("reward_model/true_reward_corr", correlation)
         if self.verbose > 0:
             print(
