@@ -4,6 +4,8 @@ Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identica
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
     python benchmarks/speed.py --algos pebble pride --variant rows_on_top --timesteps 25000
     python benchmarks/speed.py --algos pebble pride --variant wide generator_kwargs.width=512 --timesteps 25000
+    python benchmarks/speed.py --algos pebble --variant blocking_paced seconds_per_answer=0.5 \
+        --variant asynchronous_paced seconds_per_answer=0.5 --timesteps 12000 --repeats 2
 
 PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
 feedback budget for the shorter run; ``--as-tier`` runs the tier's own run instead (50k steps on walker-walk, the
@@ -27,6 +29,7 @@ from run import load_variants, merge, parse_overrides
 from stable_baselines3 import SAC
 
 import sb3_pride
+from sb3_pride.common.teachers import PacedTeacher, make_teacher
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
@@ -87,7 +90,10 @@ def parse_variant(words: list[str], variants: dict[str, dict[str, Any]] | None =
         raise SystemExit("--variant takes a label and key=value pairs")
     label, pairs = words[0], words[1:]
     if label in variants:
-        algo, overrides = variants[label]["algo"], merge(variants[label]["overrides"], parse_overrides(pairs))
+        own = dict(variants[label]["overrides"])
+        if "seconds_per_answer" in variants[label]:  # a teacher at a person's pace (a pair may change it)
+            own["seconds_per_answer"] = variants[label]["seconds_per_answer"]
+        algo, overrides = variants[label]["algo"], merge(own, parse_overrides(pairs))
     elif pairs:
         algo, overrides = "pride", parse_overrides(pairs)
     else:
@@ -100,7 +106,11 @@ def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False
     th.set_num_threads(1)
     TIMES.clear()
     cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
-    model = cls("MlpPolicy", env_id, seed=seed, **merge(tier_kwargs(algo, env_id, as_tier), overrides))
+    pace = overrides.pop("seconds_per_answer", None)
+    kwargs = merge(tier_kwargs(algo, env_id, as_tier), overrides)
+    if pace:  # the teacher answers at a person's pace: PacedTeacher
+        kwargs["teacher"] = PacedTeacher(make_teacher(kwargs["teacher"], seed=seed), pace)
+    model = cls("MlpPolicy", env_id, seed=seed, **kwargs)
     if algo != "sac":
         timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
         model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
