@@ -57,10 +57,7 @@ def finished_runs(grid_file: Path) -> dict[str, dict[int, dict[str, Any]]]:
 
 def spread(values: list[float]) -> dict[str, float]:
     return {
-        "mean": round(float(np.mean(values)), 3),
-        "std": round(float(np.std(values)), 3),
-        "min": min(values),
-        "max": max(values),
+        key: round(float(f(values)), 3) for key, f in (("mean", np.mean), ("std", np.std), ("min", np.min), ("max", np.max))
     }
 
 
@@ -119,6 +116,9 @@ def markdown(data: dict[str, Any]) -> str:
             lines.append(f"| `{configuration}` | {seed} | {r['seconds']:.0f} | {r['asked']} | {awaiting} | {r['return']:.1f} | "
                          f"{r['final_return']:.1f} |")  # fmt: skip
     lines += ["", f"Verdict: `{json.dumps(data['pace']['verdict'])}`", "",
+              "The runs shared a 2-core machine with other runs, under uneven load: their wall times differ by more than "
+              "the teacher's pace. `benchmarks/results/speed_feedback_pace.json` times both modes in one process, in "
+              "turns (`benchmarks/speed.py`).", "",
               "## B-Pref's mistake teacher (10% of labels flipped): without and with robust labels", "",
               "| configuration | seed | return | final return |", "|---|---|---|---|"]  # fmt: skip
     for configuration, runs in data["noise"]["runs"].items():
