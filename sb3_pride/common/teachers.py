@@ -184,15 +184,10 @@ class PacedTeacher:
             raise ValueError(f"seconds_per_answer must be a finite number >= 0, got {seconds_per_answer!r}")
         self.teacher = teacher
         self.seconds_per_answer = float(seconds_per_answer)
-        #: (number of queries, seconds spent) of each call
-        self.calls: list[tuple[int, float]] = []
 
     def __call__(self, pairs: SegmentPairs) -> np.ndarray:
-        start = time.monotonic()
         time.sleep(self.seconds_per_answer * len(pairs))
-        labels = self.teacher(pairs)
-        self.calls.append((len(pairs), time.monotonic() - start))
-        return labels
+        return self.teacher(pairs)
 
 
 #: makes a teacher from the run's seed

@@ -1,5 +1,6 @@
 """Argument checks shared by the algorithms and models: errors name the parameter and what was expected."""
 
+import dataclasses
 from collections.abc import Callable
 from typing import Any
 
@@ -60,8 +61,6 @@ def make_option(name: str, value: Any, settings_class: Callable[..., Any]) -> An
         return settings_class() if value else None
     if not isinstance(value, dict):
         raise ValueError(f"{name} must be True, False or a dict of {settings_class.__name__}'s settings, got {value!r}")
-    import dataclasses
-
     known = {field.name for field in dataclasses.fields(settings_class) if field.init}  # type: ignore[arg-type]
     unknown = sorted(set(value) - known)
     if unknown:

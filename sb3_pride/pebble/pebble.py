@@ -228,7 +228,8 @@ class PEBBLE(SAC):
             raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         temporal_crop = check_temporal_crop(temporal_crop, segment_length)
-        make_option("robust_labels", robust_labels, RobustLabels)  # checked before anything is made
+        # checked before anything is made
+        label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
         make_option("pseudo_labels", pseudo_labels, PseudoLabels)
         check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
 
@@ -305,7 +306,7 @@ class PEBBLE(SAC):
         self.temporal_crop = temporal_crop
         self.robust_labels = robust_labels if isinstance(robust_labels, dict) else bool(robust_labels)
         #: RIME's running selection of trusted labels (None: every label as given), saved with the model
-        self.label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
+        self.label_selection = label_selection
         self.pseudo_labels = pseudo_labels if isinstance(pseudo_labels, dict) else bool(pseudo_labels)
         self.hybrid_replay = float(hybrid_replay)
         self.critic_reset_updates = critic_reset_updates
