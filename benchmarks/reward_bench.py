@@ -43,6 +43,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from run import env_id, provenance, system_info, yaml_entry  # noqa: E402
 
+from sb3_pride.common.utils import make_option  # noqa: E402
+
 DATA = ROOT / "benchmarks" / "results" / "reward_bench_data"
 OUT = ROOT / "benchmarks" / "results" / "reward_bench"
 TASK = "walker-walk"
@@ -63,6 +65,13 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "crop + pseudo-labels + no early stop": {"temporal_crop": (35, 45), "pseudo_labels": True, "target_accuracy": 1.0},
     # query selection, in --sessions mode only (each session chooses among 10x candidates with the model so far)
     "disagreement queries": {"query_selection": "disagreement"},
+    # REED's self-supervised consistency pre-training of r̂'s encoder on the training episodes' transitions, with
+    # Adam (the package's default) and with REED's SGD; PRIDE's variant adds as many transitions made by its
+    # generator (fitted on the training episodes) to each pass
+    "consistency": {"dynamics_consistency": True},
+    "consistency (sgd)": {"dynamics_consistency": {"optimizer": "sgd"}},
+    "consistency + synthetic": {"dynamics_consistency": True, "synthetic_consistency": 0.5},
+    "crop + consistency + no early stop": {"temporal_crop": (35, 45), "dynamics_consistency": True, "target_accuracy": 1.0},
     "kcenter + disagreement queries": {"query_selection": "kcenter_disagreement"},
 }
 
@@ -210,6 +219,7 @@ def screen_one(
     """
     import torch as th
 
+    from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
     from sb3_pride.common.queries import sample_segment_pairs
     from sb3_pride.common.queries import pair_features, select_queries
     from sb3_pride.common.reward_model import PreferenceDataset, PseudoLabels, RewardEnsemble, RobustLabels
@@ -221,6 +231,8 @@ def screen_one(
     robust = config.pop("robust_labels", False)
     pseudo = PseudoLabels() if config.pop("pseudo_labels", False) else None
     selection = config.pop("query_selection", "uniform")
+    consistency = make_option("dynamics_consistency", config.pop("dynamics_consistency", False), DynamicsConsistency)
+    synthetic_share = config.pop("synthetic_consistency", 0.0)
     if selection != "uniform" and not sessions:
         raise SystemExit("a query_selection configuration needs --sessions (queries chosen with the model so far)")
     k, per_session = reward_kwargs["segment_length"], reward_kwargs["queries_per_session"]
@@ -234,6 +246,13 @@ def screen_one(
     held_obs, held_actions = steps["observations"][held_rows], steps["actions"][held_rows]
     held_rewards = steps["true_rewards"][held_rows]
 
+    transitions = None
+    if consistency is not None:  # (s, a, s') inside the training episodes, their last steps left out
+        rows = np.concatenate([np.arange(start, end - 1) for start, end in train])
+        transitions = [steps["observations"][rows], steps["actions"][rows], steps["observations"][rows + 1]]
+        if synthetic_share > 0:
+            transitions = with_synthetic(transitions, synthetic_share, seed)
+
     teacher = make_teacher(teacher_name, seed=seed)
     pair_rng, train_rng = np.random.default_rng([seed, 2]), np.random.default_rng([seed, 3])
     # the labelled pairs, in feedback sessions of queries_per_session: a budget's pairs are the first ones
@@ -245,6 +264,7 @@ def screen_one(
         chunks.append((pairs.inputs, 1.0 - labels if flip else labels))
 
     selections: dict[int, RobustLabels] = {}  # each model's own running selection (RIME)
+    consistency_models: dict[int, Any] = {}  # each model's own consistency heads (REED)
 
     def new_model() -> RewardEnsemble:
         th.manual_seed(seed)
@@ -258,11 +278,16 @@ def screen_one(
         )
         if robust:
             selections[id(model)] = RobustLabels()
+        if consistency is not None:
+            consistency_models[id(model)] = ConsistencyModel(model, held_obs.shape[1], consistency)
         return model
 
     unlabeled_rng = np.random.default_rng([seed, 4])
 
-    def train(model: RewardEnsemble, dataset: PreferenceDataset) -> tuple[float, int]:
+    def train(model: RewardEnsemble, dataset: PreferenceDataset, passes: int = 1) -> tuple[float, int]:
+        if transitions is not None:  # REED: the encoder first, one pass per feedback session so far
+            for _ in range(passes):
+                consistency_models[id(model)].train_epochs(*transitions, train_rng)
         unlabeled = None
         if pseudo is not None:
             n = min(pseudo.unlabeled_per_label * len(dataset), pseudo.max_unlabeled)
@@ -312,9 +337,25 @@ def screen_one(
             start = time.time()
             model, dataset = new_model(), PreferenceDataset(k, input_dim)
             dataset.add(inputs[:budget], labels[:budget])
-            accuracy, epochs = train(model, dataset)
+            accuracy, epochs = train(model, dataset, passes=-(-budget // per_session))
             results[budget] = evaluate(model, accuracy, epochs, time.time() - start)
     return results
+
+
+def with_synthetic(transitions: list[np.ndarray], share: float, seed: int) -> list[np.ndarray]:
+    """
+    The real (s, a, s') and, making up ``share`` of the result, transitions drawn by PRIDE's generator (its CPU
+    defaults) fitted on them.
+    """
+    from sb3_pride.common.generator import TransitionGenerator
+
+    obs, actions, next_obs = transitions
+    generator = TransitionGenerator(obs.shape[1], actions.shape[1], seed=seed, device="cpu")
+    generator.build(model_terminals=False)
+    n_synthetic = round(share * len(obs) / (1.0 - share))
+    report = generator.update(generator.transition_vectors(obs, actions, next_obs), n_synthetic)
+    synthetic = generator.split(report.vectors)
+    return [np.concatenate([real, made]).astype(np.float32) for real, made in zip(transitions, synthetic, strict=True)]
 
 
 def summarize(runs: dict[str, dict[int, dict[int, dict[str, float]]]], budgets: list[int]) -> dict[str, Any]:

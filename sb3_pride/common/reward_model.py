@@ -259,6 +259,12 @@ class EnsembleMLP(nn.Module):
             self.weights.append(nn.Parameter(th.empty(n_members, fan_in, fan_out).uniform_(-bound, bound)))
             self.biases.append(nn.Parameter(th.empty(n_members, 1, fan_out).uniform_(-bound, bound)))
 
+    def hidden(self, x: th.Tensor) -> th.Tensor:
+        """(members, N, input_dim) -> (members, N, last hidden size): the hidden layers alone (the encoder)."""
+        for weight, bias in zip(self.weights[:-1], self.biases[:-1], strict=True):
+            x = self.hidden_activation(th.baddbmm(bias, x, weight))
+        return x
+
     def forward(self, x: th.Tensor) -> th.Tensor:
         """(members, N, input_dim) -> (members, N, output_dim): ``hidden_activation`` after hidden layers, then
         ``output_activation``."""

@@ -22,6 +22,7 @@ from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.journal import JournalEntry, PreferenceJournal, atomic_write_path, merge_answers, query_id, undone_index
@@ -129,6 +130,12 @@ class PEBBLE(SAC):
         remain to be asked, this share of each SAC minibatch is drawn from the ``max_query_episodes`` most recent
         episodes, where the queries come from, so that the policy learns most where r̂ is being taught (QPA: 0.5,
         with ``max_query_episodes=10``: its policy-aligned queries). 0: uniform sampling (PEBBLE)
+    :param dynamics_consistency: REED's self-supervised pre-training of the reward model's encoder (Metcalf et al.,
+        CoRL 2023): before each feedback session's reward learning, the members' hidden layers learn from every stored
+        transition (s, a, s') to predict the next state's representation, with SimSiam's loss
+        (``sb3_pride.common.consistency.DynamicsConsistency``). True: REED's settings with Adam; a dict:
+        ``DynamicsConsistency``' settings (``epochs``, ``batch_size``, ``learning_rate``, ``optimizer``,
+        ``projection_size``, ``hidden_size``, ``max_transitions``). False: labels only (PEBBLE)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
     :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
         or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
@@ -202,6 +209,7 @@ class PEBBLE(SAC):
         robust_labels: bool | dict[str, Any] = False,
         pseudo_labels: bool | dict[str, Any] = False,
         hybrid_replay: float = 0.0,
+        dynamics_consistency: bool | dict[str, Any] = False,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
         asynchronous_feedback: bool = False,
@@ -232,6 +240,7 @@ class PEBBLE(SAC):
         label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
         make_option("pseudo_labels", pseudo_labels, PseudoLabels)
         check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
+        make_option("dynamics_consistency", dynamics_consistency, DynamicsConsistency)
 
         if reward_early_stop is not None:
             check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
@@ -309,6 +318,9 @@ class PEBBLE(SAC):
         self.label_selection = label_selection
         self.pseudo_labels = pseudo_labels if isinstance(pseudo_labels, dict) else bool(pseudo_labels)
         self.hybrid_replay = float(hybrid_replay)
+        self.dynamics_consistency = (
+            dynamics_consistency if isinstance(dynamics_consistency, dict) else bool(dynamics_consistency)
+        )
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.asynchronous_feedback = bool(asynchronous_feedback)
@@ -409,6 +421,9 @@ class PEBBLE(SAC):
             learning_rate=self.reward_learning_rate,
             device=self.device,
         )
+        settings = make_option("dynamics_consistency", getattr(self, "dynamics_consistency", False), DynamicsConsistency)
+        #: REED's consistency heads on r̂'s encoder (None: off), saved with the model
+        self.consistency_model = None if settings is None else ConsistencyModel(self.reward_model, obs_dim, settings)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
         self._attach_reward_model()
@@ -767,8 +782,24 @@ class PEBBLE(SAC):
         )
         return None if pairs is None else pairs.inputs
 
+    def consistency_transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(s, a, s') of every real transition stored, for REED's consistency pre-training (``dynamics_consistency``)."""
+        buffer = self.real_buffer
+        rows = chronological_rows(buffer)
+        return tuple(  # type: ignore[return-value]
+            column[rows].reshape(-1, column.shape[-1])
+            for column in (buffer.observations, buffer.actions, buffer.next_observations)
+        )
+
     def learn_reward(self) -> None:
-        """Train the reward ensemble on every preference so far (Eqs. 1–2), then relabel the buffer with r̂."""
+        """
+        Train the reward ensemble on every preference so far (Eqs. 1–2), then relabel the buffer with r̂; with
+        ``dynamics_consistency``, its encoder is first trained on the stored transitions (REED).
+        """
+        consistency_model = getattr(self, "consistency_model", None)  # models saved by 0.1.0 have none
+        if consistency_model is not None:
+            loss = consistency_model.train_epochs(*self.consistency_transitions(), self.preference_rng)
+            self.logger.record("reward_model/consistency_loss", loss)
         pseudo_labels = make_option("pseudo_labels", getattr(self, "pseudo_labels", False), PseudoLabels)
         loss, accuracy, epochs = self.reward_model.train_epochs(
             self.preferences,
@@ -945,7 +976,7 @@ class PEBBLE(SAC):
         self._attach_teacher()
 
     def _excluded_save_params(self) -> list[str]:
-        excluded = [*super()._excluded_save_params(), "reward_model", "_journal_cache"]
+        excluded = [*super()._excluded_save_params(), "reward_model", "consistency_model", "_journal_cache"]
         excluded += ["_pending_feedback", "_teacher_records"]  # a session in progress: the journal keeps it
         if self._named_teacher is not None and not isinstance(self._named_teacher[1], ScriptedTeacher):
             # made again from its name when loaded (a person's page and port, a client): only B-Pref's scripted
@@ -955,7 +986,10 @@ class PEBBLE(SAC):
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
-        return [*state_dicts, "reward_model", "reward_model.optimizer"], variables
+        state_dicts = [*state_dicts, "reward_model", "reward_model.optimizer"]
+        if getattr(self, "consistency_model", None) is not None:
+            state_dicts += ["consistency_model", "consistency_model.optimizer"]
+        return state_dicts, variables
 
     def learn(
         self: SelfPEBBLE,
