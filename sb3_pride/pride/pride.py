@@ -48,6 +48,10 @@ class PRIDE(PEBBLE):
     :param diffusion_interval: R, env steps between retrain-and-generate (paper: 10k)
     :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
+    :param synthetic_consistency: beyond the paper: with ``dynamics_consistency`` (REED's pre-training of r̂'s
+        encoder), the share of each consistency pass made of B_syn's transitions, added to every real one (at most
+        all of B_syn), so that the reward model learns the dynamics from the generator's samples too. 0: real
+        transitions only
     :param generator_kwargs: ``TransitionGenerator`` arguments: the diffusion's sizes (``width``, ``n_blocks``,
         ``train_steps``, ``sample_steps``), ``warm_start``, ``normalization``, ``model_state_change``, ``generation``,
         ``anchor_noise``, ``window``, ``keep_quantile``, ``filter``, ``fidelity_check``, ``diffusion_kwargs``,
@@ -69,6 +73,7 @@ class PRIDE(PEBBLE):
         diffusion_interval: int = 5000,
         synthetic_samples: int = 10_000,
         synthetic_buffer_size: int | None = None,
+        synthetic_consistency: float = 0.0,
         generator_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
@@ -87,6 +92,12 @@ class PRIDE(PEBBLE):
             check_positive_ints(synthetic_buffer_size=synthetic_buffer_size)
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
         check_generator_kwargs(generator_kwargs, pebble_kwargs)
+        check_real("synthetic_consistency", synthetic_consistency, lambda share: 0.0 <= share < 1.0, "in [0, 1)")
+        if synthetic_consistency > 0 and not pebble_kwargs.get("dynamics_consistency", False):
+            raise ValueError(
+                f"synthetic_consistency={synthetic_consistency} adds synthetic transitions to REED's consistency "
+                "pre-training, which is off: set dynamics_consistency=True as well"
+            )
         replay_buffer_kwargs = dict(pebble_kwargs.pop("replay_buffer_kwargs", None) or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
@@ -100,6 +111,7 @@ class PRIDE(PEBBLE):
         self.diffusion_interval = diffusion_interval
         self.synthetic_samples = synthetic_samples
         self.synthetic_buffer_size = synthetic_buffer_size
+        self.synthetic_consistency = float(synthetic_consistency)
         self.generator_kwargs = dict(generator_kwargs or {})
         # learning state, saved with the model; whether transitions hold a terminal flag is known at the first retrain
         self.model_terminals: bool | None = None
@@ -188,6 +200,19 @@ class PRIDE(PEBBLE):
             rows = rows[-int(np.ceil(self.generator.window / buffer.n_envs)) :]
         terminals = buffer.dones[rows] * (1.0 - buffer.timeouts[rows])
         return buffer.observations[rows], buffer.actions[rows], buffer.next_observations[rows], terminals
+
+    def consistency_transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        (s, a, s') for REED's consistency pre-training: every real transition and, with ``synthetic_consistency`` c,
+        up to c / (1 − c) times as many of B_syn's (all of them at most).
+        """
+        real = super().consistency_transitions()
+        share, synthetic = getattr(self, "synthetic_consistency", 0.0), self.replay_buffer.synthetic
+        n = min(synthetic.size(), round(share * len(real[0]) / (1.0 - share)))
+        if n == 0:
+            return real
+        made = (synthetic.observations[:n, 0], synthetic.actions[:n, 0], synthetic.next_observations[:n, 0])
+        return tuple(np.concatenate([r, m]) for r, m in zip(real, made, strict=True))  # type: ignore[return-value]
 
     def retrain_generator(self) -> GenerationReport:
         """

@@ -1,0 +1,125 @@
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
+from sb3_pride.common.reward_model import RewardEnsemble
+
+OBS, ACT = 8, 2
+
+
+def transitions(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(s, a, s') of a fixed nonlinear dynamics: s' = tanh(s A + a B)."""
+    rng = np.random.default_rng(seed)
+    mixing = np.random.default_rng(123)
+    a_matrix, b_matrix = mixing.normal(size=(OBS, OBS)) * 0.6, mixing.normal(size=(ACT, OBS))
+    s = rng.normal(size=(n, OBS)).astype(np.float32)
+    a = rng.uniform(-1, 1, size=(n, ACT)).astype(np.float32)
+    return s, a, np.tanh(s @ a_matrix + a @ b_matrix).astype(np.float32)
+
+
+def consistency_loss(model: ConsistencyModel, s: np.ndarray, a: np.ndarray, s_next: np.ndarray) -> float:
+    n = model.next_state_predictor.weights[0].shape[0]
+    columns = [th.as_tensor(column).unsqueeze(0).expand(n, -1, -1) for column in (s, a, s_next)]
+    with th.no_grad():
+        return model.loss(*columns).item() / n
+
+
+def trained(s: np.ndarray, a: np.ndarray, s_next: np.ndarray) -> tuple[RewardEnsemble, ConsistencyModel]:
+    th.manual_seed(0)
+    reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64))
+    model = ConsistencyModel(reward_model, OBS, DynamicsConsistency(epochs=8, batch_size=64, hidden_size=64))
+    model.train_epochs(s, a, s_next, np.random.default_rng(0))
+    return reward_model, model
+
+
+def test_consistency_learns_the_dynamics_and_a_shuffled_one_does_not():
+    """After REED's pre-training on true transitions, held-out true next states are predicted far better than
+    mismatched ones (shuffled s'); trained on transitions whose next states were shuffled, the encoder learns no such
+    thing: the gap is the test's yardstick, and it fails on the corrupted case."""
+    s, a, s_next = transitions(4000, seed=0)
+    test_s, test_a, test_next = transitions(1000, seed=1)
+    shuffled = test_next[np.random.default_rng(2).permutation(len(test_next))]
+
+    _, model = trained(s, a, s_next)
+    gap = consistency_loss(model, test_s, test_a, shuffled) - consistency_loss(model, test_s, test_a, test_next)
+
+    corrupted = s_next[np.random.default_rng(3).permutation(len(s_next))]
+    _, bad_model = trained(s, a, corrupted)
+    bad_gap = consistency_loss(bad_model, test_s, test_a, shuffled) - consistency_loss(bad_model, test_s, test_a, test_next)
+    print(f"gap {gap:.3f}, with corrupted next states {bad_gap:.3f}")
+    assert gap > 0.1 and bad_gap < gap / 4, (gap, bad_gap)
+
+
+def test_consistency_trains_the_encoder_never_the_reward_head_and_does_not_collapse():
+    s, a, s_next = transitions(2000, seed=0)
+    th.manual_seed(0)
+    reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64))
+    head, first = reward_model.members.weights[-1].detach().clone(), reward_model.members.weights[0].detach().clone()
+    model = ConsistencyModel(reward_model, OBS, DynamicsConsistency(epochs=2, batch_size=64))
+    model.train_epochs(s, a, s_next, np.random.default_rng(0))
+    assert th.equal(head, reward_model.members.weights[-1])
+    assert not th.equal(first, reward_model.members.weights[0])
+    with th.no_grad():  # the targets' projections still differ between states (no collapse to one point)
+        embedding = reward_model.members.hidden_activation(
+            th.baddbmm(reward_model.members.biases[0], th.as_tensor(s_next[:500]).expand(2, -1, -1),
+                       reward_model.members.weights[0][:, :OBS])
+        )  # fmt: skip
+        projected = model.project(embedding)
+    assert projected.std(dim=1).mean() > 0.1
+
+
+@pytest.mark.parametrize(
+    "bad, match",
+    [
+        ({"epochs": 0}, "epochs"),
+        ({"optimizer": "rmsprop"}, "optimizer"),
+        ({"learning_rate": -1.0}, "learning_rate"),
+        ({"max_transitions": 1.5}, "max_transitions"),
+        ({"steps": 3}, "unknown settings"),
+        ("reed", "dynamics_consistency"),
+    ],
+)
+def test_bad_dynamics_consistency_names_the_setting(bad, match):
+    with pytest.raises(ValueError, match=match):
+        PEBBLE("MlpPolicy", "Pendulum-v1", dynamics_consistency=bad)
+
+
+def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_path):
+    from stable_baselines3.common.logger import configure
+
+    assert PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs).consistency_model is None  # off: PEBBLE as published
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency={"max_transitions": 300}, **tiny_kwargs)
+    model.set_logger(configure(str(tmp_path), ["csv"]))
+    model.learn(400, log_interval=1)
+    assert model.feedback_sessions == 1
+    s, a, s_next = model.consistency_transitions()
+    assert s.shape == s_next.shape == (400, 3) and a.shape == (400, 1)
+    model.save(tmp_path / "model")
+    loaded = PEBBLE.load(tmp_path / "model")
+    assert loaded.consistency_model.members[0] is loaded.reward_model.members  # still one encoder
+    for saved, kept in zip(model.consistency_model.parameters(), loaded.consistency_model.parameters(), strict=True):
+        assert th.equal(saved, kept)
+    import pandas as pd
+
+    assert pd.read_csv(tmp_path / "progress.csv")["reward_model/consistency_loss"].notna().any()
+
+
+def test_pride_adds_its_synthetic_transitions_to_the_consistency_pass(tiny_kwargs):
+    with pytest.raises(ValueError, match="synthetic_consistency"):
+        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=1.0)
+    with pytest.raises(ValueError, match="dynamics_consistency"):
+        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=0.5)  # nothing to add them to
+    model = PRIDE(
+        "MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency=True, synthetic_consistency=0.5,
+        synthetic_start=0, synthetic_ramp=0, synthetic_samples=100, diffusion_interval=100,
+        generator_kwargs=dict(width=32, n_blocks=1, train_steps=20, keep_quantile=1.0, fidelity_check=False), **tiny_kwargs,
+    )  # fmt: skip
+    model.learn(400)
+    real = model.real_buffer.size()
+    assert model.replay_buffer.synthetic.size() == 100
+    s, _, s_next = model.consistency_transitions()
+    assert len(s) == real + 100  # every real transition, and synthetic ones up to half of the pass
+    np.testing.assert_array_equal(s[real:], model.replay_buffer.synthetic.observations[:100, 0])
+    np.testing.assert_array_equal(s_next[real:], model.replay_buffer.synthetic.next_observations[:100, 0])
