@@ -284,7 +284,7 @@ def screen_one(
 
     unlabeled_rng = np.random.default_rng([seed, 4])
 
-    def train(model: RewardEnsemble, dataset: PreferenceDataset, passes: int = 1) -> tuple[float, int]:
+    def fit(model: RewardEnsemble, dataset: PreferenceDataset, passes: int = 1) -> tuple[float, int]:
         if transitions is not None:  # REED: the encoder first, one pass per feedback session so far
             for _ in range(passes):
                 consistency_models[id(model)].train_epochs(*transitions, train_rng)
@@ -326,7 +326,7 @@ def screen_one(
                 inputs, labels = candidates[chosen].inputs, teacher(candidates[chosen])
                 labels = 1.0 - labels if flip else labels
             dataset.add(inputs, labels)
-            accuracy, epochs = train(model, dataset)
+            accuracy, epochs = fit(model, dataset)
             epochs_run += epochs
             if len(dataset) in budgets:
                 results[len(dataset)] = evaluate(model, accuracy, epochs_run, time.time() - start)
@@ -337,7 +337,7 @@ def screen_one(
             start = time.time()
             model, dataset = new_model(), PreferenceDataset(k, input_dim)
             dataset.add(inputs[:budget], labels[:budget])
-            accuracy, epochs = train(model, dataset, passes=-(-budget // per_session))
+            accuracy, epochs = fit(model, dataset, passes=-(-budget // per_session))
             results[budget] = evaluate(model, accuracy, epochs, time.time() - start)
     return results
 

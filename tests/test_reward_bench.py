@@ -55,7 +55,16 @@ def test_held_out_episodes_never_give_a_training_pair():
     assert not any(tuple(o) in held_obs for o in pairs.observations.reshape(-1, 3))
 
 
-@pytest.mark.parametrize("config, sessions", [({}, False), ({"temporal_crop": (6, 9)}, False), ({}, True)])
+@pytest.mark.parametrize(
+    "config, sessions",
+    [
+        ({}, False),
+        ({"temporal_crop": (6, 9)}, False),
+        ({}, True),
+        ({"pseudo_labels": True}, False),
+        ({"dynamics_consistency": {"max_transitions": 200}}, False),
+    ],
+)
 def test_screen_learns_from_oracle_labels_and_a_flipping_teacher_reads_far_worse(config, sessions):
     th.set_num_threads(1)
     steps = recorded_steps()
