@@ -70,6 +70,7 @@ CONFIGS: dict[str, dict[str, Any]] = {
     # generator (fitted on the training episodes) to each pass
     "consistency": {"dynamics_consistency": True},
     "consistency (sgd)": {"dynamics_consistency": {"optimizer": "sgd"}},
+    "consistency, 2 epochs": {"dynamics_consistency": {"epochs": 2}},  # the SSL steps of "+ synthetic" (2x data)
     "consistency, 5 epochs": {"dynamics_consistency": {"epochs": 5}},
     "consistency + synthetic": {"dynamics_consistency": True, "synthetic_consistency": 0.5},
     "crop + consistency + no early stop": {"temporal_crop": (35, 45), "dynamics_consistency": True, "target_accuracy": 1.0},
