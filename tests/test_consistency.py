@@ -58,9 +58,17 @@ def test_consistency_trains_the_encoder_never_the_reward_head_and_does_not_colla
     reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64))
     head, first = reward_model.members.weights[-1].detach().clone(), reward_model.members.weights[0].detach().clone()
     model = ConsistencyModel(reward_model, OBS, DynamicsConsistency(epochs=2, batch_size=64))
+    stepped = {id(p) for group in model.optimizer.param_groups for p in group["params"]}
+    members = reward_model.members
+    assert {id(p) for p in [*members.weights[:-1], *members.biases[:-1]]} <= stepped  # the encoder r̂ uses
+    assert not {id(members.weights[-1]), id(members.biases[-1])} & stepped  # never the reward head
     model.train_epochs(s, a, s_next, np.random.default_rng(0))
     assert th.equal(head, reward_model.members.weights[-1])
     assert not th.equal(first, reward_model.members.weights[0])
+    # the target is held fixed: no gradient reaches s' (SimSiam's stop-gradient)
+    target = th.as_tensor(s_next[:64]).expand(2, -1, -1).clone().requires_grad_(True)
+    model.loss(th.as_tensor(s[:64]).expand(2, -1, -1), th.as_tensor(a[:64]).expand(2, -1, -1), target).backward()
+    assert target.grad is None
     with th.no_grad():  # the targets' projections still differ between states (no collapse to one point)
         embedding = reward_model.members.hidden_activation(
             th.baddbmm(reward_model.members.biases[0], th.as_tensor(s_next[:500]).expand(2, -1, -1),
@@ -101,6 +109,13 @@ def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_
     assert loaded.consistency_model.members[0] is loaded.reward_model.members  # still one encoder
     for saved, kept in zip(model.consistency_model.parameters(), loaded.consistency_model.parameters(), strict=True):
         assert th.equal(saved, kept)
+    # the optimizer's moments came back, and it steps the loaded encoder
+    saved_state, loaded_state = (m.consistency_model.optimizer.state_dict()["state"] for m in (model, loaded))
+    assert saved_state.keys() == loaded_state.keys() and len(saved_state) > 0
+    for key in saved_state:
+        assert th.equal(saved_state[key]["exp_avg"], loaded_state[key]["exp_avg"])
+    stepped = {id(p) for group in loaded.consistency_model.optimizer.param_groups for p in group["params"]}
+    assert id(loaded.reward_model.members.weights[0]) in stepped
     import pandas as pd
 
     assert pd.read_csv(tmp_path / "progress.csv")["reward_model/consistency_loss"].notna().any()
@@ -111,6 +126,7 @@ def test_pride_adds_its_synthetic_transitions_to_the_consistency_pass(tiny_kwarg
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=1.0)
     with pytest.raises(ValueError, match="dynamics_consistency"):
         PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=0.5)  # nothing to add them to
+    PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=0.5, dynamics_consistency={})  # {}: on, the defaults
     model = PRIDE(
         "MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency=True, synthetic_consistency=0.5,
         synthetic_start=0, synthetic_ramp=0, synthetic_samples=100, diffusion_interval=100,
@@ -123,3 +139,20 @@ def test_pride_adds_its_synthetic_transitions_to_the_consistency_pass(tiny_kwarg
     assert len(s) == real + 100  # every real transition, and synthetic ones up to half of the pass
     np.testing.assert_array_equal(s[real:], model.replay_buffer.synthetic.observations[:100, 0])
     np.testing.assert_array_equal(s_next[real:], model.replay_buffer.synthetic.next_observations[:100, 0])
+    model.synthetic_consistency = 0.1  # c / (1 - c) times as many synthetic as real ones, below the cap
+    assert len(model.consistency_transitions()[0]) == real + round(0.1 * real / 0.9)
+
+
+def test_consistency_transitions_keep_each_envs_transitions_together(tiny_kwargs):
+    from stable_baselines3.common.env_util import make_vec_env
+
+    model = PEBBLE(
+        "MlpPolicy", make_vec_env("Pendulum-v1", n_envs=2, seed=0), seed=0, dynamics_consistency=True, **tiny_kwargs
+    )
+    model.learn(200)
+    s, a, s_next = model.consistency_transitions()
+    buffer = model.replay_buffer
+    assert len(s) == 2 * buffer.pos
+    np.testing.assert_array_equal(s[1], buffer.observations[0, 1])  # row 0 of env 1
+    np.testing.assert_array_equal(s_next[1], buffer.next_observations[0, 1])
+    np.testing.assert_array_equal(a[1], buffer.actions[0, 1])

@@ -24,15 +24,21 @@ class DynamicsConsistency:
     projection held fixed), so that r̂ starts from features that encode the environment's dynamics and the labels only
     have to teach the reward head. It needs no labels: every stored transition is a training example.
 
-    Here the encoder is each member's hidden layers: z(s, a) is the member's last hidden layer, the representation of a
-    state e(s) is its first layer applied to the state alone (the state's part of the first layer's weights, its bias,
-    the hidden activation), which the reward model shares as REED's state encoder is shared; a member's next-state
-    predictor (one linear layer, z → e) is followed by REED's "mosaic" projector and predictor (two layers each, layer
-    norm on the output; the batch norm at the projector's input is left out). Each member trains on its own minibatches.
+    Here the encoder is each member's hidden layers: z(s, a) is the member's last hidden layer. REED's reward network
+    embeds the state and the action apart before its trunk, and the target is the state embedding of s'; the members
+    here take [s, a] in one first layer, so the representation of a state, e(s), is that layer applied to the state
+    alone (the state's part of its weights, its bias, the hidden activation): the same weights r̂ uses, though r̂ itself
+    never computes e. A member's next-state predictor (one linear layer, z → e) is followed by a projector and a
+    predictor of two layers each with a layer norm (without learnt scale and shift) on their outputs: REED's "mosaic"
+    heads, which REED uses for image observations (its state network has a one-layer projector and a batch-normed
+    predictor); the batch norm at the projector's input is left out. Each member trains on its own minibatches.
 
     REED's settings: 1 epoch over the replay buffer before every reward update, batch 128, learning rate 3e-4, SGD,
-    projection 128, hidden 256. SGD at that rate barely moves a network in the few thousand steps of a 50k-step run,
-    so the default here is Adam (the reward model's own optimizer); ``optimizer="sgd"`` is REED's.
+    a new optimizer at each update, on a random 80% of the buffer. Here the default optimizer is Adam, made once (its
+    moments are kept across feedback sessions and saved with the model), a separate one from the reward model's over
+    the encoder it shares with it, and a pass takes every stored transition up to ``max_transitions`` (a random
+    choice of them beyond). ``optimizer="sgd"`` is REED's (``benchmarks/results/reward_bench_consistency.md``
+    compares the two).
 
     :param epochs: passes over the transitions before each reward update
     :param batch_size: transitions per minibatch

@@ -131,8 +131,8 @@ class PEBBLE(SAC):
         episodes, where the queries come from, so that the policy learns most where r̂ is being taught (QPA: 0.5,
         with ``max_query_episodes=10``: its policy-aligned queries). 0: uniform sampling (PEBBLE)
     :param dynamics_consistency: REED's self-supervised pre-training of the reward model's encoder (Metcalf et al.,
-        CoRL 2023): before each feedback session's reward learning, the members' hidden layers learn from every stored
-        transition (s, a, s') to predict the next state's representation, with SimSiam's loss
+        CoRL 2023): before each feedback session's reward learning, the members' hidden layers learn from the stored
+        transitions (s, a, s') to predict the next state's representation, with SimSiam's loss
         (``sb3_pride.common.consistency.DynamicsConsistency``). True: REED's settings with Adam; a dict:
         ``DynamicsConsistency``' settings (``epochs``, ``batch_size``, ``learning_rate``, ``optimizer``,
         ``projection_size``, ``hidden_size``, ``max_transitions``). False: labels only (PEBBLE)

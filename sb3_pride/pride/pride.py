@@ -7,9 +7,10 @@ from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
+from sb3_pride.common.consistency import DynamicsConsistency
 from sb3_pride.common.generator import GenerationReport, TransitionGenerator
 from sb3_pride.common.queries import chronological_rows
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real, make_option
 from sb3_pride.pebble.pebble import PEBBLE
 from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.pride.recipes import check_generator_kwargs, migrate_saved_settings
@@ -93,7 +94,8 @@ class PRIDE(PEBBLE):
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
         check_generator_kwargs(generator_kwargs, pebble_kwargs)
         check_real("synthetic_consistency", synthetic_consistency, lambda share: 0.0 <= share < 1.0, "in [0, 1)")
-        if synthetic_consistency > 0 and not pebble_kwargs.get("dynamics_consistency", False):
+        consistency = pebble_kwargs.get("dynamics_consistency", False)
+        if synthetic_consistency > 0 and make_option("dynamics_consistency", consistency, DynamicsConsistency) is None:
             raise ValueError(
                 f"synthetic_consistency={synthetic_consistency} adds synthetic transitions to REED's consistency "
                 "pre-training, which is off: set dynamics_consistency=True as well"
