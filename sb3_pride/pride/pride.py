@@ -7,13 +7,12 @@ from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
-from sb3_pride.common.consistency import DynamicsConsistency
 from sb3_pride.common.generator import GenerationReport, TransitionGenerator
 from sb3_pride.common.queries import chronological_rows
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, check_real, make_option
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
 from sb3_pride.pride.callbacks import GeneratorCallback
-from sb3_pride.pride.recipes import check_generator_kwargs, migrate_saved_settings
+from sb3_pride.pride.recipes import check_generator_kwargs, check_synthetic_settings, migrate_saved_settings
 
 
 class PRIDE(PEBBLE):
@@ -49,10 +48,9 @@ class PRIDE(PEBBLE):
     :param diffusion_interval: R, env steps between retrain-and-generate (paper: 10k)
     :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
-    :param synthetic_consistency: beyond the paper: with ``dynamics_consistency`` (REED's pre-training of r̂'s
-        encoder), the share of each consistency pass made of B_syn's transitions, added to every real one (at most
-        all of B_syn), so that the reward model learns the dynamics from the generator's samples too. 0: real
-        transitions only
+    :param synthetic_consistency: beyond the paper: with ``dynamics_consistency`` (REED), the share of each of its
+        passes made of B_syn's transitions (at most all of B_syn), so that r̂'s encoder learns the dynamics from the
+        generator's samples too. 0: real transitions only
     :param generator_kwargs: ``TransitionGenerator`` arguments: the diffusion's sizes (``width``, ``n_blocks``,
         ``train_steps``, ``sample_steps``), ``warm_start``, ``normalization``, ``model_state_change``, ``generation``,
         ``anchor_noise``, ``window``, ``keep_quantile``, ``filter``, ``fidelity_check``, ``diffusion_kwargs``,
@@ -79,27 +77,12 @@ class PRIDE(PEBBLE):
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
     ):
-        check_real("synthetic_ratio", synthetic_ratio, lambda u: 0.0 <= u <= 1.0, "in [0, 1]")
-        if not isinstance(synthetic_on_top, (bool, np.bool_)):
-            raise ValueError(f"synthetic_on_top must be True or False, got {synthetic_on_top!r}")
-        if synthetic_on_top and synthetic_ratio == 1.0:
-            raise ValueError(
-                "synthetic_on_top=True needs synthetic_ratio < 1 (each minibatch holds batch_size / (1 - u) rows, "
-                "batch_size of them real), got synthetic_ratio=1.0; for minibatches of synthetic rows only, set "
-                "synthetic_on_top=False"
-            )
+        check_synthetic_settings(synthetic_ratio, synthetic_on_top, synthetic_consistency, pebble_kwargs)
         check_positive_ints(diffusion_interval=diffusion_interval, synthetic_samples=synthetic_samples)
         if synthetic_buffer_size is not None:
             check_positive_ints(synthetic_buffer_size=synthetic_buffer_size)
         check_non_negative_ints(synthetic_start=synthetic_start, synthetic_ramp=synthetic_ramp)
         check_generator_kwargs(generator_kwargs, pebble_kwargs)
-        check_real("synthetic_consistency", synthetic_consistency, lambda share: 0.0 <= share < 1.0, "in [0, 1)")
-        consistency = pebble_kwargs.get("dynamics_consistency", False)
-        if synthetic_consistency > 0 and make_option("dynamics_consistency", consistency, DynamicsConsistency) is None:
-            raise ValueError(
-                f"synthetic_consistency={synthetic_consistency} adds synthetic transitions to REED's consistency "
-                "pre-training, which is off: set dynamics_consistency=True as well"
-            )
         replay_buffer_kwargs = dict(pebble_kwargs.pop("replay_buffer_kwargs", None) or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
@@ -204,17 +187,10 @@ class PRIDE(PEBBLE):
         return buffer.observations[rows], buffer.actions[rows], buffer.next_observations[rows], terminals
 
     def consistency_transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """
-        (s, a, s') for REED's consistency pre-training: every real transition and, with ``synthetic_consistency`` c,
-        up to c / (1 − c) times as many of B_syn's (all of them at most).
-        """
-        real = super().consistency_transitions()
-        share, synthetic = getattr(self, "synthetic_consistency", 0.0), self.replay_buffer.synthetic
-        n = min(synthetic.size(), round(share * len(real[0]) / (1.0 - share)))
-        if n == 0:
-            return real
-        made = (synthetic.observations[:n, 0], synthetic.actions[:n, 0], synthetic.next_observations[:n, 0])
-        return tuple(np.concatenate([r, m]) for r, m in zip(real, made, strict=True))  # type: ignore[return-value]
+        """REED's (s, a, s'): every real one and, with ``synthetic_consistency`` c, c / (1 − c) × as many of B_syn's."""
+        real, share = super().consistency_transitions(), self.synthetic_consistency
+        made = self.replay_buffer.synthetic.transitions(round(share * len(real[0]) / (1.0 - share)))
+        return tuple(np.concatenate(pair) for pair in zip(real, made, strict=True))  # type: ignore[return-value]
 
     def retrain_generator(self) -> GenerationReport:
         """
