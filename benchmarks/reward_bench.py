@@ -73,6 +73,12 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "consistency (sgd)": {"dynamics_consistency": {"optimizer": "sgd"}},
     "consistency, 2 epochs": {"dynamics_consistency": {"epochs": 2}},  # the SSL steps of "+ synthetic" (2x data)
     "consistency, 5 epochs": {"dynamics_consistency": {"epochs": 5}},
+    "consistency, 10 epochs": {"dynamics_consistency": {"epochs": 10}},
+    "crop + consistency, 5 epochs + no early stop": {
+        "temporal_crop": (35, 45),
+        "dynamics_consistency": {"epochs": 5},
+        "target_accuracy": 1.0,
+    },
     "consistency + synthetic": {"dynamics_consistency": True, "synthetic_consistency": 0.5},
     "crop + consistency + no early stop": {"temporal_crop": (35, 45), "dynamics_consistency": True, "target_accuracy": 1.0},
     "kcenter + disagreement queries": {"query_selection": "kcenter_disagreement"},
