@@ -441,6 +441,17 @@ def markdown(result: dict[str, Any]) -> str:
         f"{result['n_test_pairs']} held-out segment pairs; mean ± std over seeds.",
         "",
         *([f"**Note:** {result['note']}", ""] if result.get("note") else []),
+        *(
+            [
+                "Seeds per configuration (merged from "
+                + ", ".join(f"`{p['file']}`" for p in result["parts"])
+                + "): "
+                + "; ".join(f"{name}: {sorted(int(s) for s in by_seed)}" for name, by_seed in result["runs"].items()),
+                "",
+            ]
+            if result.get("parts")
+            else []
+        ),
         "## Decision rule",
         "",
         DECISION_RULE,
@@ -534,12 +545,56 @@ def screen(args: argparse.Namespace) -> dict[str, Any]:
     return result
 
 
+def merge(paths: list[Path], out: Path) -> dict[str, Any]:
+    """
+    One screen from several made on the same data and settings (a screen split across processes, one per core): the
+    runs of every configuration and seed, the table and the verdict recomputed; each part's command and version kept.
+    """
+    parts = [json.loads(path.read_text()) for path in paths]
+    first = parts[0]
+    for path, part in zip(paths, parts, strict=True):
+        for key in ("budgets", "sessions", "reward_kwargs", "n_test_pairs", "data"):
+            if part[key] != first[key]:
+                raise SystemExit(f"--merge: {path} differs from {paths[0]} in {key!r}")
+    runs: dict[str, dict[str, Any]] = {}
+    configs: dict[str, Any] = {}
+    for part in parts:
+        configs.update(part["configs"])
+        for name, by_seed in part["runs"].items():
+            for seed, cells in by_seed.items():
+                if int(seed) in runs.setdefault(name, {}):
+                    raise SystemExit(f"--merge: {name!r} seed {seed} is in more than one file")
+                runs[name][int(seed)] = {int(budget): cell for budget, cell in cells.items()}
+    budgets = first["budgets"]
+    table = summarize(runs, budgets)
+    result = {
+        **{key: first[key] for key in ("budgets", "sessions", "n_test_pairs", "reward_kwargs", "data", "system")},
+        "command": " + ".join(part["command"] for part in parts),
+        "seconds": sum(part["seconds"] for part in parts),
+        "seeds": sorted({int(seed) for by_seed in runs.values() for seed in by_seed}),
+        "configs": configs,
+        "decision_rule": DECISION_RULE,
+        "table": table,
+        "verdict": decide(table, budgets),
+        "runs": runs,
+        "version": first["version"],
+        "parts": [
+            {"file": path.name, "command": part["command"], "version": part["version"]}
+            for path, part in zip(paths, parts, strict=True)
+        ],
+    }
+    out.with_suffix(".json").write_text(json.dumps(result, indent=2, default=str))
+    out.with_suffix(".md").write_text(markdown(result))
+    return result
+
+
 def make_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     mode = parser.add_mutually_exclusive_group(required=True)
     mode.add_argument("--record", action="store_true", help="run PEBBLE once and save its replay buffer")
     mode.add_argument("--screen", action="store_true", help="train reward models on the recorded data")
     mode.add_argument("--markdown", type=Path, default=None, help="rewrite the markdown table of a screen's JSON file")
+    mode.add_argument("--merge", type=Path, nargs="+", default=None, help="one screen (--out) from screens' JSON files")
     parser.add_argument("--data", type=Path, default=DATA, help="the recorded data's folder")
     parser.add_argument("--checkpoints", type=int, nargs="+", default=[10_000, 20_000, 30_000])
     parser.add_argument("--record-seed", type=int, default=0)
@@ -557,6 +612,9 @@ def main(argv: list[str] | None = None) -> None:
     if args.markdown is not None:
         result = json.loads(args.markdown.read_text())
         args.markdown.with_suffix(".md").write_text(markdown(result))
+        return
+    if args.merge is not None:
+        merge(args.merge, args.out)
         return
     args.command = " ".join(["python", "benchmarks/reward_bench.py", *(sys.argv[1:] if argv is None else argv)])
     if args.record:

@@ -1,6 +1,7 @@
 """benchmarks/reward_bench.py: held-out episodes stay out of training, labels teach r̂, a flipping teacher is caught."""
 
 import importlib.util
+import json
 from pathlib import Path
 
 import numpy as np
@@ -91,3 +92,25 @@ def test_decision_rule_picks_the_finalist_and_measures_the_gap():
     assert not verdict["reaches_plain_at_400_with_100_labels"]
     assert verdict["gap_at_100_to_plain_at_400"] == pytest.approx(0.05)
     assert verdict["flipped_reads_bad"]
+
+
+def test_merge_joins_screens_made_apart_and_refuses_a_seed_twice(tmp_path):
+    th.set_num_threads(1)
+    steps = recorded_steps()
+    parts = []
+    for seed in (0, 1):
+        runs = {"plain": {seed: reward_bench.screen_one(steps, {}, seed, [20], TINY_REWARD)}}
+        table = reward_bench.summarize(runs, [20])
+        part = dict(command=f"screen seed {seed}", seconds=1.0, budgets=[20], seeds=[seed], sessions=False,
+                    n_test_pairs=2000, configs={"plain": {}}, reward_kwargs=TINY_REWARD, decision_rule="",
+                    table=table, verdict=reward_bench.decide(table, [20]), runs=runs, data={"steps": 1},
+                    version={"commit": "x"}, system={"CPU": "test"})  # fmt: skip
+        parts.append(tmp_path / f"part{seed}.json")
+        parts[-1].write_text(json.dumps(part, default=str))
+    merged = reward_bench.merge(parts, tmp_path / "merged")
+    assert merged["seeds"] == [0, 1] and sorted(merged["runs"]["plain"]) == [0, 1]
+    corr = [merged["runs"]["plain"][seed][20]["corr"] for seed in (0, 1)]
+    assert merged["table"]["plain"]["20"]["corr"]["mean"] == pytest.approx(np.mean(corr))
+    assert "merged from `part0.json`, `part1.json`" in (tmp_path / "merged.md").read_text()
+    with pytest.raises(SystemExit, match="more than one file"):
+        reward_bench.merge([parts[0], parts[0]], tmp_path / "twice")
