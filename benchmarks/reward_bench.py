@@ -82,6 +82,13 @@ CONFIGS: dict[str, dict[str, Any]] = {
     "consistency + synthetic": {"dynamics_consistency": True, "synthetic_consistency": 0.5},
     "crop + consistency + no early stop": {"temporal_crop": (35, 45), "dynamics_consistency": True, "target_accuracy": 1.0},
     "kcenter + disagreement queries": {"query_selection": "kcenter_disagreement"},
+    # the two ways to learn more from unlabelled data together: SURF's pseudo-labels on REED's pre-trained encoder
+    "pseudo-labels + consistency, 5 epochs": {"pseudo_labels": True, "dynamics_consistency": {"epochs": 5}},
+    "crop + pseudo-labels + consistency, 5 epochs": {
+        "temporal_crop": (35, 45),
+        "pseudo_labels": True,
+        "dynamics_consistency": {"epochs": 5},
+    },
 }
 
 DECISION_RULE = (
