@@ -114,6 +114,13 @@ def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_
     assert saved_state.keys() == loaded_state.keys() and len(saved_state) > 0
     for key in saved_state:
         assert th.equal(saved_state[key]["exp_avg"], loaded_state[key]["exp_avg"])
+    # its settings may change when loading, but it cannot be turned off (nor on, for a model saved without it)
+    assert PEBBLE.load(tmp_path / "model", dynamics_consistency={"epochs": 3}).consistency_model.settings.epochs == 3
+    with pytest.raises(ValueError, match=r"dynamics_consistency: .* saved with it on"):
+        PEBBLE.load(tmp_path / "model", dynamics_consistency=False)
+    PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs).save(tmp_path / "plain")
+    with pytest.raises(ValueError, match=r"dynamics_consistency: .* saved with it off"):
+        PEBBLE.load(tmp_path / "plain", dynamics_consistency=True)
     stepped = {id(p) for group in loaded.consistency_model.optimizer.param_groups for p in group["params"]}
     assert id(loaded.reward_model.members.weights[0]) in stepped
     import pandas as pd
@@ -141,6 +148,7 @@ def test_pride_adds_its_synthetic_transitions_to_the_consistency_pass(tiny_kwarg
     np.testing.assert_array_equal(s_next[real:], model.replay_buffer.synthetic.next_observations[:100, 0])
     model.synthetic_consistency = 0.1  # c / (1 - c) times as many synthetic as real ones, below the cap
     assert len(model.consistency_transitions()[0]) == real + round(0.1 * real / 0.9)
+    assert len(model.consistency_transitions(limit=100)[0]) == 100  # 90 real ones drawn, 10 synthetic
 
 
 def test_consistency_transitions_keep_each_envs_transitions_together(tiny_kwargs):
@@ -156,3 +164,13 @@ def test_consistency_transitions_keep_each_envs_transitions_together(tiny_kwargs
     np.testing.assert_array_equal(s[1], buffer.observations[0, 1])  # row 0 of env 1
     np.testing.assert_array_equal(s_next[1], buffer.next_observations[0, 1])
     np.testing.assert_array_equal(a[1], buffer.actions[0, 1])
+    # a limit draws that many (s, a, s') of them, each a stored transition whole
+    s, a, s_next = model.consistency_transitions(limit=50)
+    assert s.shape == (50, 3) and len(np.unique(s, axis=0)) == 50
+    stored = np.concatenate([buffer.observations[: buffer.pos, e] for e in range(2)])
+    stored_next = np.concatenate([buffer.next_observations[: buffer.pos, e] for e in range(2)])
+    stored_actions = np.concatenate([buffer.actions[: buffer.pos, e] for e in range(2)])
+    for i in range(50):
+        (j,) = np.flatnonzero((stored == s[i]).all(axis=1))
+        np.testing.assert_array_equal(stored_next[j], s_next[i])
+        np.testing.assert_array_equal(stored_actions[j], a[i])

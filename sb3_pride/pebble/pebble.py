@@ -17,6 +17,7 @@ from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
 from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.preprocessing import get_action_dim, get_flattened_obs_dim, is_image_space
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
@@ -400,7 +401,22 @@ class PEBBLE(SAC):
     @classmethod
     def load(cls, path, env: GymEnv | None = None, device: th.device | str = "auto", custom_objects=None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
-        """SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``."""
+        """
+        SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``, and
+        ``dynamics_consistency`` may change its settings but not turn it on or off (its heads are saved with the model).
+        """
+        if "dynamics_consistency" in kwargs:
+            saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
+            was_on, now_on = (
+                make_option("dynamics_consistency", value, DynamicsConsistency) is not None
+                for value in ((saved or {}).get("dynamics_consistency", False), kwargs["dynamics_consistency"])
+            )
+            if was_on != now_on:
+                raise ValueError(
+                    f"dynamics_consistency: the model at {path} was saved with it {'on' if was_on else 'off'}, and "
+                    "loading cannot turn it " + ("off" if was_on else "on") + "; leave dynamics_consistency out, or "
+                    "give settings that keep it " + ("on" if was_on else "off")
+                )
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         if env is not None and model.env is not None:
             model._check_env(model.env, model.segment_length, model.verbose)
@@ -782,14 +798,17 @@ class PEBBLE(SAC):
         )
         return None if pairs is None else pairs.inputs
 
-    def consistency_transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(s, a, s') of every real transition stored, for REED's consistency pre-training (``dynamics_consistency``)."""
+    def consistency_transitions(self, limit: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """
+        (s, a, s') of the real transitions stored, for REED's consistency pre-training (``dynamics_consistency``):
+        every one, oldest first, or a random choice of ``limit`` of them, drawn before any is copied.
+        """
         buffer = self.real_buffer
         rows = chronological_rows(buffer)
-        return tuple(  # type: ignore[return-value]
-            column[rows].reshape(-1, column.shape[-1])
-            for column in (buffer.observations, buffer.actions, buffer.next_observations)
-        )
+        n = len(rows) * buffer.n_envs
+        chosen = np.arange(n) if limit is None or n <= limit else np.sort(self.preference_rng.choice(n, limit, replace=False))
+        row, env = rows[chosen // buffer.n_envs], chosen % buffer.n_envs
+        return tuple(column[row, env] for column in (buffer.observations, buffer.actions, buffer.next_observations))  # type: ignore[return-value]
 
     def learn_reward(self) -> None:
         """
@@ -798,7 +817,8 @@ class PEBBLE(SAC):
         """
         consistency_model = getattr(self, "consistency_model", None)  # models saved by 0.1.0 have none
         if consistency_model is not None:
-            loss = consistency_model.train_epochs(*self.consistency_transitions(), self.preference_rng)
+            transitions = self.consistency_transitions(consistency_model.settings.max_transitions)
+            loss = consistency_model.train_epochs(*transitions, self.preference_rng)
             self.logger.record("reward_model/consistency_loss", loss)
         pseudo_labels = make_option("pseudo_labels", getattr(self, "pseudo_labels", False), PseudoLabels)
         loss, accuracy, epochs = self.reward_model.train_epochs(

@@ -186,9 +186,10 @@ class PRIDE(PEBBLE):
         terminals = buffer.dones[rows] * (1.0 - buffer.timeouts[rows])
         return buffer.observations[rows], buffer.actions[rows], buffer.next_observations[rows], terminals
 
-    def consistency_transitions(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """REED's (s, a, s'): every real one and, with ``synthetic_consistency`` c, c / (1 − c) × as many of B_syn's."""
-        real, share = super().consistency_transitions(), self.synthetic_consistency
+    def consistency_transitions(self, limit: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """REED's (s, a, s'): the real ones and, with ``synthetic_consistency`` c, c / (1 − c) × as many of B_syn's."""
+        share = self.synthetic_consistency
+        real = super().consistency_transitions(None if limit is None else round((1.0 - share) * limit))
         made = self.replay_buffer.synthetic.transitions(round(share * len(real[0]) / (1.0 - share)))
         return tuple(np.concatenate(pair) for pair in zip(real, made, strict=True))  # type: ignore[return-value]
 
