@@ -13,6 +13,8 @@ from stable_baselines3.common.vec_env import VecNormalize
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 #: r_int(minibatch observations, all stored observations) -> (B, 1) rewards
 IntrinsicRewardFn = Callable[[th.Tensor, th.Tensor], th.Tensor]
+#: a bonus added to a sampled minibatch's rewards (RUNE's β_t · σ), of the minibatch: shape like its rewards
+RewardBonusFn = Callable[[ReplayBufferSamples], th.Tensor]
 
 
 def relabel_rewards(buffer: ReplayBuffer, reward_fn: RewardFn, batch_size: int = 16_384) -> None:
@@ -32,6 +34,11 @@ def concatenate_samples(first: ReplayBufferSamples, second: ReplayBufferSamples)
     return ReplayBufferSamples(*fields)  # type: ignore[arg-type]
 
 
+def with_reward_bonus(samples: ReplayBufferSamples, bonus: RewardBonusFn | None) -> ReplayBufferSamples:
+    """``samples`` with ``bonus(samples)`` added to their rewards (unchanged when ``bonus`` is None)."""
+    return samples if bonus is None else samples._replace(rewards=samples.rewards + bonus(samples))
+
+
 class PreferenceReplayBuffer(ReplayBuffer):
     """
     SB3 ``ReplayBuffer`` for preference-based RL (PEBBLE).
@@ -40,6 +47,7 @@ class PreferenceReplayBuffer(ReplayBuffer):
     teacher and the diagnostics read, and stores r̂ of the current reward model in ``rewards`` (0 before the
     first reward model exists). ``relabel()`` rewrites every stored reward with r̂ after a reward update.
     While ``intrinsic_reward`` is set (unsupervised pre-training), sampled rewards are r_int instead.
+    Otherwise, while ``reward_bonus`` is set (RUNE's exploration bonus), it is added to each sampled minibatch's rewards.
 
     Same constructor as SB3's ``ReplayBuffer``.
     """
@@ -70,6 +78,7 @@ class PreferenceReplayBuffer(ReplayBuffer):
         self.true_rewards = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
         self.reward_fn: RewardFn | None = None
         self.intrinsic_reward: IntrinsicRewardFn | None = None
+        self.reward_bonus: RewardBonusFn | None = None
         #: True while a teacher needs pictures: ``add()`` then keeps ``info["render_state"]`` of every transition
         self.record_render_states = False
         #: (buffer_size, n_envs, state_dim) float64, the simulator state after each stored step (the frame of its
@@ -85,6 +94,7 @@ class PreferenceReplayBuffer(ReplayBuffer):
         state = self.__dict__.copy()
         state["reward_fn"] = None
         state["intrinsic_reward"] = None
+        state["reward_bonus"] = None
         return state
 
     def add(self, obs, next_obs, action, reward, done, infos) -> None:  # type: ignore[override]
@@ -141,7 +151,7 @@ class PreferenceReplayBuffer(ReplayBuffer):
                 uniform = super().sample(batch_size - n_recent, env=env)
                 samples = concatenate_samples(recent, uniform)
         if self.intrinsic_reward is None:
-            return samples
+            return with_reward_bonus(samples, self.reward_bonus)
         # Unsupervised pre-training: the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
         all_obs = self._normalize_obs(self.observations[: self.size()].reshape(-1, *self.obs_shape), env)
         assert isinstance(all_obs, np.ndarray)  # flat Box observations (PEBBLE checks the env)
@@ -251,6 +261,13 @@ class DualReplayBuffer(ReplayBuffer):
         self.optimize_memory_usage = False
         self.handle_timeout_termination = handle_timeout_termination
         self.synthetic_ratio = synthetic_ratio
+        #: added to each whole minibatch, synthetic rows too (the real part's own stays None)
+        self.reward_bonus: RewardBonusFn | None = None
+
+    def __getstate__(self) -> dict:
+        state = self.__dict__.copy()
+        state["reward_bonus"] = None  # the algorithm's, which sets it again
+        return state
 
     # what SB3 reads of a replay buffer, answered by the real part
     @property
@@ -309,12 +326,13 @@ class DualReplayBuffer(ReplayBuffer):
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         n_synthetic = self.n_synthetic(batch_size)
         if n_synthetic == 0:
-            return self.real.sample(batch_size, env=env)
-        synthetic = self.synthetic.sample(n_synthetic, env=env)
-        if n_synthetic == batch_size:
-            return synthetic
-        real = self.real.sample(batch_size - n_synthetic, env=env)
-        return concatenate_samples(synthetic, real)  # synthetic rows first
+            samples = self.real.sample(batch_size, env=env)
+        elif n_synthetic == batch_size:
+            samples = self.synthetic.sample(n_synthetic, env=env)
+        else:
+            synthetic = self.synthetic.sample(n_synthetic, env=env)
+            samples = concatenate_samples(synthetic, self.real.sample(batch_size - n_synthetic, env=env))  # synthetic first
+        return samples if self.real.intrinsic_reward is not None else with_reward_bonus(samples, self.reward_bonus)
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
         return self.real._get_samples(batch_inds, env=env)

@@ -11,6 +11,8 @@ from stable_baselines3.common.utils import get_device
 from torch import nn
 from torch.nn import functional as F
 
+from sb3_pride.common.utils import check_real
+
 
 def preference_loss(returns: th.Tensor, labels: th.Tensor) -> th.Tensor:
     """
@@ -204,6 +206,33 @@ class PseudoLabels:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"pseudo_labels: {name} must be an integer >= 1, got {value!r}")
+
+
+@dataclass
+class ExplorationBonus:
+    """
+    RUNE's exploration bonus (Liang et al., *Reward Uncertainty for Exploration in Preference-based Reinforcement
+    Learning*, ICLR 2022): from the first feedback session on, SAC learns from r̂(s, a) + β_t · σ(s, a), where σ is the
+    standard deviation of the ensemble members' r̂_m(s, a) (where they disagree, a label would teach the most) and
+    β_t = β_0 (1 − ρ)^t decays with the env steps t. The bonus is computed on each SAC minibatch with the current
+    ensemble; the stored rewards stay r̂.
+
+    RUNE's settings: β_0 = 0.05, ρ = 1e-5 (RIME's re-implementation uses ρ = 1e-3).
+
+    :param beta_init: β_0, the bonus weight at step 0
+    :param beta_decay: ρ, its decay per env step
+    """
+
+    beta_init: float = 0.05
+    beta_decay: float = 1e-5
+
+    def __post_init__(self) -> None:
+        check_real("exploration_bonus: beta_init", self.beta_init, lambda beta: 0 < beta < math.inf, "> 0 and finite")
+        check_real("exploration_bonus: beta_decay", self.beta_decay, lambda rho: 0 <= rho < 1, "in [0, 1)")
+
+    def beta(self, step: int) -> float:
+        """β_t = β_0 (1 − ρ)^t."""
+        return self.beta_init * (1.0 - self.beta_decay) ** step
 
 
 class PreferenceDataset:

@@ -18,7 +18,7 @@ from stable_baselines3.common.base_class import BaseAlgorithm, maybe_make_env
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.preprocessing import get_action_dim, get_flattened_obs_dim, is_image_space
 from stable_baselines3.common.save_util import load_from_zip_file
-from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
+from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayBufferSamples, Schedule
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
 
@@ -36,7 +36,14 @@ from sb3_pride.common.queries import (
     sample_segment_pairs,
     select_queries,
 )
-from sb3_pride.common.reward_model import PreferenceDataset, PseudoLabels, RewardEnsemble, RobustLabels, check_temporal_crop
+from sb3_pride.common.reward_model import (
+    ExplorationBonus,
+    PreferenceDataset,
+    PseudoLabels,
+    RewardEnsemble,
+    RobustLabels,
+    check_temporal_crop,
+)
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
 from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real, make_option
 
@@ -137,6 +144,10 @@ class PEBBLE(SAC):
         (``sb3_pride.common.consistency.DynamicsConsistency``). True: REED's settings with Adam; a dict:
         ``DynamicsConsistency``' settings (``epochs``, ``batch_size``, ``learning_rate``, ``optimizer``,
         ``projection_size``, ``hidden_size``, ``max_transitions``). False: labels only (PEBBLE)
+    :param exploration_bonus: RUNE's exploration bonus (Liang et al., ICLR 2022): from the first feedback session on,
+        SAC learns from r̂ + β_t · σ, σ the reward ensemble's disagreement on each (s, a) and β_t decaying with the env
+        steps (``sb3_pride.common.reward_model.ExplorationBonus``). True: RUNE's settings; a dict: ``ExplorationBonus``'
+        settings (``beta_init``, ``beta_decay``). False: r̂ alone (PEBBLE)
     :param critic_reset_updates: gradient steps on r̂ right after the critic reset (PEBBLE: 100)
     :param preference_journal: a JSON-lines file to which every answer of the teacher (the pair's inputs and μ,
         or a skip) is appended and flushed to disk the moment it is given. A model created or loaded with a journal
@@ -211,6 +222,7 @@ class PEBBLE(SAC):
         pseudo_labels: bool | dict[str, Any] = False,
         hybrid_replay: float = 0.0,
         dynamics_consistency: bool | dict[str, Any] = False,
+        exploration_bonus: bool | dict[str, Any] = False,
         critic_reset_updates: int = 100,
         preference_journal: str | os.PathLike | None = None,
         asynchronous_feedback: bool = False,
@@ -242,6 +254,7 @@ class PEBBLE(SAC):
         make_option("pseudo_labels", pseudo_labels, PseudoLabels)
         check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
         make_option("dynamics_consistency", dynamics_consistency, DynamicsConsistency)
+        make_option("exploration_bonus", exploration_bonus, ExplorationBonus)
 
         if reward_early_stop is not None:
             check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
@@ -322,6 +335,7 @@ class PEBBLE(SAC):
         self.dynamics_consistency = (
             dynamics_consistency if isinstance(dynamics_consistency, dict) else bool(dynamics_consistency)
         )
+        self.exploration_bonus = exploration_bonus if isinstance(exploration_bonus, dict) else bool(exploration_bonus)
         self.critic_reset_updates = critic_reset_updates
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.asynchronous_feedback = bool(asynchronous_feedback)
@@ -463,6 +477,7 @@ class PEBBLE(SAC):
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         self.update_hybrid_replay()
+        self.update_exploration_bonus()
         super().train(gradient_steps, batch_size)
         self._train_calls += 1
         if not self.in_pretraining and self._train_calls % self.diagnostic_interval == 0:
@@ -510,6 +525,26 @@ class PEBBLE(SAC):
         active = share > 0 and not self.in_pretraining and self.feedback_asked < self.max_feedback
         self.real_buffer.recent_share = share if active else 0.0
         self.real_buffer.recent_rows = recent_rows(self.real_buffer, self.max_query_episodes) if active else None
+
+    def update_exploration_bonus(self) -> None:
+        """RUNE's bonus (``exploration_bonus``) on SAC's minibatches from the first feedback session on; logs β_t."""
+        settings = make_option("exploration_bonus", getattr(self, "exploration_bonus", False), ExplorationBonus)
+        active = settings is not None and not self.in_pretraining
+        self.replay_buffer.reward_bonus = self.exploration_bonus_rewards if active else None
+        if active:
+            self.logger.record("train/exploration_beta", settings.beta(self.num_timesteps))
+
+    @th.no_grad()
+    def exploration_bonus_rewards(self, samples: ReplayBufferSamples) -> th.Tensor:
+        """RUNE's β_t · σ(s, a) of a minibatch (σ: the members' std of r̂_m(s, a) on the stored observations)."""
+        settings = make_option("exploration_bonus", self.exploration_bonus, ExplorationBonus)
+        observations = samples.observations
+        if self._vec_normalize_env is not None:  # r̂ reads observations as stored, not as the policy sees them
+            raw = self._vec_normalize_env.unnormalize_obs(observations.cpu().numpy())
+            observations = th.as_tensor(raw, dtype=th.float32, device=samples.rewards.device)
+        inputs = th.cat([observations.float(), samples.actions.float()], dim=-1).to(self.reward_model.device)
+        sigma = self.reward_model(inputs).std(dim=0)  # (B, 1), like the rewards
+        return (settings.beta(self.num_timesteps) * sigma).to(samples.rewards.device, samples.rewards.dtype)
 
     def update_reward_source(self) -> None:
         """SAC's reward: r_int (Eq. 3) while pre-training, r̂ (Eq. 1) from the first feedback session on."""

@@ -1,0 +1,103 @@
+"""RUNE's exploration bonus: r̂ + β_t · σ on SAC's minibatches, from the first feedback session on."""
+
+import math
+
+import gymnasium as gym
+import numpy as np
+import pytest
+import torch as th
+
+from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.reward_model import ExplorationBonus
+
+
+def test_settings_are_runes_and_decay_with_the_steps():
+    bonus = ExplorationBonus()
+    assert (bonus.beta_init, bonus.beta_decay) == (0.05, 1e-5)
+    assert bonus.beta(0) == 0.05
+    assert bonus.beta(100_000) == pytest.approx(0.05 * math.exp(-1), rel=1e-4)
+    assert ExplorationBonus(beta_decay=0.0).beta(10**6) == 0.05
+
+
+@pytest.mark.parametrize(
+    "bad, name",
+    [
+        (0.0, "exploration_bonus must be True, False or a dict"),
+        ({"beta_init": 0.0}, "beta_init"),
+        ({"beta_init": float("nan")}, "beta_init"),
+        ({"beta_init": True}, "beta_init"),
+        ({"beta_decay": 1.0}, "beta_decay"),
+        ({"beta_decay": -1e-5}, "beta_decay"),
+        ({"beta": 0.1}, "unknown settings"),
+    ],
+)
+def test_bad_settings_are_refused_by_name(bad, name):
+    with pytest.raises(ValueError, match=name):
+        PEBBLE("MlpPolicy", "Pendulum-v1", exploration_bonus=bad)
+
+
+def sampled_rewards(model, batch_size=64, seed=0):
+    np.random.seed(seed)
+    return model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
+
+
+def expected_bonus(model, samples):
+    inputs = th.cat([samples.observations, samples.actions], dim=-1)
+    with th.no_grad():
+        sigma = model.reward_model(inputs).std(dim=0)
+    settings = model.exploration_bonus if isinstance(model.exploration_bonus, dict) else {}
+    return ExplorationBonus(**settings).beta(model.num_timesteps) * sigma
+
+
+def test_pebble_adds_the_ensembles_disagreement_after_pretraining(tiny_kwargs):
+    plain = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    plain.learn(350)
+    assert plain.replay_buffer.reward_bonus is None  # off: PEBBLE as published
+
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, exploration_bonus={"beta_init": 0.5}, **tiny_kwargs)
+    model.learn(250)  # still pre-training on the state entropy: no bonus
+    assert model.in_pretraining and model.replay_buffer.reward_bonus is None
+    model.learn(200, reset_num_timesteps=False)
+    assert not model.in_pretraining and model.replay_buffer.reward_bonus is not None
+    with_bonus = sampled_rewards(model)
+    bonus = model.replay_buffer.reward_bonus
+    model.replay_buffer.reward_bonus = None
+    without = sampled_rewards(model)
+    model.replay_buffer.reward_bonus = bonus
+    th.testing.assert_close(with_bonus.observations, without.observations)  # the same rows
+    added = with_bonus.rewards - without.rewards
+    th.testing.assert_close(added, expected_bonus(model, without))
+    assert (added > 0).all() and added.shape == without.rewards.shape
+    # the stored rewards stay r̂
+    np.testing.assert_allclose(
+        model.replay_buffer.rewards[:10, 0],
+        model.reward_model.predict(model.replay_buffer.observations[:10, 0], model.replay_buffer.actions[:10, 0]),
+        rtol=1e-5,
+        atol=1e-6,
+    )
+
+
+def test_pride_adds_it_to_synthetic_rows_too_and_saves_without_it(tiny_kwargs, tmp_path):
+    model = PRIDE(
+        "MlpPolicy", "Pendulum-v1", seed=0, exploration_bonus=True, synthetic_start=0, synthetic_ramp=0,
+        synthetic_samples=100, diffusion_interval=100,
+        generator_kwargs=dict(width=32, n_blocks=1, train_steps=20, keep_quantile=1.0, fidelity_check=False), **tiny_kwargs,
+    )  # fmt: skip
+    model.learn(400)
+    assert model.replay_buffer.synthetic.size() > 0 and model.replay_buffer.reward_bonus is not None
+    assert model.replay_buffer.real.reward_bonus is None  # added once, to the whole minibatch
+    with_bonus = sampled_rewards(model)
+    bonus = model.replay_buffer.reward_bonus
+    model.replay_buffer.reward_bonus = None
+    without = sampled_rewards(model)
+    model.replay_buffer.reward_bonus = bonus
+    n_synthetic = model.replay_buffer.n_synthetic(64)
+    assert 0 < n_synthetic < 64
+    th.testing.assert_close(with_bonus.rewards - without.rewards, expected_bonus(model, without))
+    model.save(tmp_path / "model")
+    model.save_replay_buffer(tmp_path / "buffer")
+    loaded = PRIDE.load(tmp_path / "model", env=gym.make("Pendulum-v1"))
+    loaded.load_replay_buffer(tmp_path / "buffer")
+    assert loaded.exploration_bonus is True and loaded.replay_buffer.reward_bonus is None
+    loaded.learn(10, reset_num_timesteps=False)
+    assert loaded.replay_buffer.reward_bonus is not None
