@@ -36,17 +36,29 @@ def test_bad_settings_are_refused_by_name(bad, name):
         PEBBLE("MlpPolicy", "Pendulum-v1", exploration_bonus=bad)
 
 
+def test_one_member_has_no_disagreement_to_explore():
+    with pytest.raises(ValueError, match="exploration_bonus needs ensemble_size >= 2"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", exploration_bonus=True, ensemble_size=1)
+    PEBBLE("MlpPolicy", "Pendulum-v1", ensemble_size=1)  # without it, one member is PEBBLE's business
+
+
 def sampled_rewards(model, batch_size=64, seed=0):
+    state = np.random.get_state()
     np.random.seed(seed)
-    return model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
+    samples = model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
+    np.random.set_state(state)
+    return samples
 
 
 def expected_bonus(model, samples):
-    inputs = th.cat([samples.observations, samples.actions], dim=-1)
-    with th.no_grad():
-        sigma = model.reward_model(inputs).std(dim=0)
+    """β_t times RUNE's σ: NumPy's std over the members' r̂ (divided by the number of members)."""
+    obs, actions = samples.observations.numpy(), samples.actions.numpy()
+    members = np.stack([
+        model.reward_model(th.as_tensor(np.concatenate([obs, actions], axis=-1)))[m].detach().numpy()
+        for m in range(model.ensemble_size)
+    ])  # fmt: skip
     settings = model.exploration_bonus if isinstance(model.exploration_bonus, dict) else {}
-    return ExplorationBonus(**settings).beta(model.num_timesteps) * sigma
+    return th.as_tensor(ExplorationBonus(**settings).beta(model.num_timesteps) * members.std(axis=0))
 
 
 def test_pebble_adds_the_ensembles_disagreement_after_pretraining(tiny_kwargs):
@@ -83,7 +95,9 @@ def test_pride_adds_it_to_synthetic_rows_too_and_saves_without_it(tiny_kwargs, t
         synthetic_samples=100, diffusion_interval=100,
         generator_kwargs=dict(width=32, n_blocks=1, train_steps=20, keep_quantile=1.0, fidelity_check=False), **tiny_kwargs,
     )  # fmt: skip
-    model.learn(400)
+    model.learn(250)
+    assert model.in_pretraining and model.replay_buffer.reward_bonus is None
+    model.learn(150, reset_num_timesteps=False)
     assert model.replay_buffer.synthetic.size() > 0 and model.replay_buffer.reward_bonus is not None
     assert model.replay_buffer.real.reward_bonus is None  # added once, to the whole minibatch
     with_bonus = sampled_rewards(model)
@@ -101,3 +115,14 @@ def test_pride_adds_it_to_synthetic_rows_too_and_saves_without_it(tiny_kwargs, t
     assert loaded.exploration_bonus is True and loaded.replay_buffer.reward_bonus is None
     loaded.learn(10, reset_num_timesteps=False)
     assert loaded.replay_buffer.reward_bonus is not None
+
+
+def test_buffers_pickled_before_the_bonus_existed_still_sample(tiny_kwargs):
+    import pickle
+
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.learn(150)
+    for buffer in (model.replay_buffer, model.replay_buffer.real):
+        buffer.__dict__.pop("reward_bonus", None)  # as an older version pickled them
+    loaded = pickle.loads(pickle.dumps(model.replay_buffer))
+    assert loaded.sample(8).rewards.shape == (8, 1) and loaded.real.sample(8).rewards.shape == (8, 1)

@@ -53,6 +53,8 @@ class PreferenceReplayBuffer(ReplayBuffer):
     """
 
     true_rewards: np.ndarray
+    #: RUNE's bonus, set by the algorithm (a class default: buffers pickled before it existed have none)
+    reward_bonus: RewardBonusFn | None = None
 
     def __init__(
         self,
@@ -78,7 +80,6 @@ class PreferenceReplayBuffer(ReplayBuffer):
         self.true_rewards = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
         self.reward_fn: RewardFn | None = None
         self.intrinsic_reward: IntrinsicRewardFn | None = None
-        self.reward_bonus: RewardBonusFn | None = None
         #: True while a teacher needs pictures: ``add()`` then keeps ``info["render_state"]`` of every transition
         self.record_render_states = False
         #: (buffer_size, n_envs, state_dim) float64, the simulator state after each stored step (the frame of its
@@ -261,8 +262,10 @@ class DualReplayBuffer(ReplayBuffer):
         self.optimize_memory_usage = False
         self.handle_timeout_termination = handle_timeout_termination
         self.synthetic_ratio = synthetic_ratio
-        #: added to each whole minibatch, synthetic rows too (the real part's own stays None)
-        self.reward_bonus: RewardBonusFn | None = None
+
+    #: RUNE's bonus, added to each whole minibatch, synthetic rows too (the real part's own stays None); a class
+    #: default, as buffers pickled before it existed have none
+    reward_bonus: RewardBonusFn | None = None
 
     def __getstate__(self) -> dict:
         state = self.__dict__.copy()

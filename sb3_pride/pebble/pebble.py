@@ -1,3 +1,4 @@
+import functools
 import os
 import threading
 import time
@@ -22,7 +23,7 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, ReplayB
 from stable_baselines3.common.vec_env import VecEnv, unwrap_vec_normalize
 from stable_baselines3.sac.policies import SACPolicy
 
-from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.buffers import PreferenceReplayBuffer, with_reward_bonus
 from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.common.entropy import StateEntropyReward
@@ -254,7 +255,8 @@ class PEBBLE(SAC):
         make_option("pseudo_labels", pseudo_labels, PseudoLabels)
         check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
         make_option("dynamics_consistency", dynamics_consistency, DynamicsConsistency)
-        make_option("exploration_bonus", exploration_bonus, ExplorationBonus)
+        if make_option("exploration_bonus", exploration_bonus, ExplorationBonus) is not None and ensemble_size < 2:
+            raise ValueError(f"exploration_bonus needs ensemble_size >= 2 (its σ is the members' spread), got {ensemble_size}")
 
         if reward_early_stop is not None:
             check_real("reward_early_stop", reward_early_stop, lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)")
@@ -503,7 +505,9 @@ class PEBBLE(SAC):
             np.random.seed(int(self._diagnostic_rng.integers(2**32)))
             if real_only:
                 rows = self._diagnostic_rng.integers(0, self.real_buffer.size(), size=batch_size)
-                data = self.real_buffer._get_samples(rows, env=self._vec_normalize_env)
+                data = with_reward_bonus(
+                    self.real_buffer._get_samples(rows, env=self._vec_normalize_env), self.replay_buffer.reward_bonus
+                )
             else:
                 data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
             next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
@@ -527,23 +531,31 @@ class PEBBLE(SAC):
         self.real_buffer.recent_rows = recent_rows(self.real_buffer, self.max_query_episodes) if active else None
 
     def update_exploration_bonus(self) -> None:
-        """RUNE's bonus (``exploration_bonus``) on SAC's minibatches from the first feedback session on; logs β_t."""
+        """
+        RUNE's bonus (``exploration_bonus``) on SAC's minibatches once r̂ has learned from labels (after pre-training);
+        logs β_t. β_t counts ``num_timesteps``, so ``learn(reset_num_timesteps=True)`` starts it again at β_0.
+        """
         settings = make_option("exploration_bonus", getattr(self, "exploration_bonus", False), ExplorationBonus)
-        active = settings is not None and not self.in_pretraining
-        self.replay_buffer.reward_bonus = self.exploration_bonus_rewards if active else None
+        active = settings is not None and not self.in_pretraining and len(self.preferences) > 0
+        self.replay_buffer.reward_bonus = (
+            functools.partial(self.exploration_bonus_rewards, settings=settings) if active else None
+        )
         if active:
             self.logger.record("train/exploration_beta", settings.beta(self.num_timesteps))
 
     @th.no_grad()
-    def exploration_bonus_rewards(self, samples: ReplayBufferSamples) -> th.Tensor:
-        """RUNE's β_t · σ(s, a) of a minibatch (σ: the members' std of r̂_m(s, a) on the stored observations)."""
-        settings = make_option("exploration_bonus", self.exploration_bonus, ExplorationBonus)
+    def exploration_bonus_rewards(self, samples: ReplayBufferSamples, settings: ExplorationBonus) -> th.Tensor:
+        """
+        RUNE's β_t · σ(s, a) of a minibatch, σ the members' standard deviation of r̂_m(s, a) (divided by the number of
+        members, as RUNE's). Under ``VecNormalize`` the observations are un-normalized first (r̂ reads them as stored;
+        values VecNormalize clipped stay clipped).
+        """
         observations = samples.observations
-        if self._vec_normalize_env is not None:  # r̂ reads observations as stored, not as the policy sees them
+        if self._vec_normalize_env is not None:
             raw = self._vec_normalize_env.unnormalize_obs(observations.cpu().numpy())
             observations = th.as_tensor(raw, dtype=th.float32, device=samples.rewards.device)
         inputs = th.cat([observations.float(), samples.actions.float()], dim=-1).to(self.reward_model.device)
-        sigma = self.reward_model(inputs).std(dim=0)  # (B, 1), like the rewards
+        sigma = self.reward_model(inputs).std(dim=0, correction=0)  # (B, 1), like the rewards
         return (settings.beta(self.num_timesteps) * sigma).to(samples.rewards.device, samples.rewards.dtype)
 
     def update_reward_source(self) -> None:
@@ -841,7 +853,7 @@ class PEBBLE(SAC):
         buffer = self.real_buffer
         rows = chronological_rows(buffer)
         n = len(rows) * buffer.n_envs
-        chosen = np.arange(n) if limit is None or n <= limit else np.sort(self.preference_rng.choice(n, limit, replace=False))
+        chosen = np.arange(n) if limit is None or n <= limit else self.preference_rng.choice(n, limit, replace=False)
         row, env = rows[chosen // buffer.n_envs], chosen % buffer.n_envs
         return tuple(column[row, env] for column in (buffer.observations, buffer.actions, buffer.next_observations))  # type: ignore[return-value]
 

@@ -190,7 +190,8 @@ class PRIDE(PEBBLE):
         """REED's (s, a, s'): the real ones and, with ``synthetic_consistency`` c, c / (1 − c) × as many of B_syn's."""
         share = self.synthetic_consistency
         real = super().consistency_transitions(None if limit is None else round((1.0 - share) * limit))
-        made = self.replay_buffer.synthetic.transitions(round(share * len(real[0]) / (1.0 - share)))
+        n_made = round(share * len(real[0]) / (1.0 - share))
+        made = self.replay_buffer.synthetic.transitions(n_made if limit is None else min(n_made, limit - len(real[0])))
         return tuple(np.concatenate(pair) for pair in zip(real, made, strict=True))  # type: ignore[return-value]
 
     def retrain_generator(self) -> GenerationReport:
