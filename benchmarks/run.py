@@ -12,8 +12,9 @@ task gets its YAML entry's own value (e.g. u = 0.25 on cheetah-run, 2000 queries
 reward ignores both. Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
 EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv``, ``result.json`` and
 ``progress.csv`` (SB3's logger: feedback counts, reward-model accuracy and true-reward correlation, diffusion
-fidelity and timings, SAC losses). ``settings.json`` records the run's settings, the ``sb3_pride`` version, the git
-commit of the tree (and whether it had uncommitted changes) and the library versions and CPU.
+fidelity and timings, SAC losses). ``settings.json`` records the run's settings, the algorithm's defaults, the
+``sb3_pride`` version, the git commit of the tree (and whether it had uncommitted changes) and the library versions
+and CPU.
 
 Named configurations (``hyperparams/<tier>/variants.yml``) and grids of them (``benchmarks/grids/*.yml``) are run by
 ``benchmarks/grid.py``, which uses this module's functions.
@@ -130,6 +131,25 @@ def constructor_arguments(algo: str) -> set[str]:
         if not any(p.kind == p.VAR_KEYWORD for p in parameters):
             break
     return names - {"self"}
+
+
+def algorithm_defaults(algo: str) -> dict[str, Any]:
+    """
+    The algorithm's keyword defaults, its own and its parents' (PRIDE's ``generator_kwargs`` spelled out as the
+    generator's): a run records them beside the arguments it was given, so that what it ran stays known when a default
+    changes.
+    """
+    defaults: dict[str, Any] = {}
+    for cls in reversed(algorithm_class(algo).__mro__):
+        if "__init__" in vars(cls) and cls is not object:
+            parameters = inspect.signature(cls.__init__).parameters.values()
+            defaults.update({p.name: p.default for p in parameters if p.default is not p.empty and p.name[0] != "_"})
+    if algo == "pride":
+        from sb3_pride.common.generator import TransitionGenerator
+
+        parameters = inspect.signature(TransitionGenerator.__init__).parameters.values()
+        defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
+    return defaults
 
 
 #: constructor arguments a run sets itself (the run name records the budget and u): --set must not change them
@@ -274,7 +294,14 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     model.set_logger(configure(str(folder), ["csv"]))
     (folder / "settings.json").write_text(
         json.dumps(
-            {**spec, "n_timesteps": n_timesteps, "kwargs": kwargs, "version": provenance(), "system": system_info()},
+            {
+                **spec,
+                "n_timesteps": n_timesteps,
+                "kwargs": kwargs,
+                "defaults": algorithm_defaults(spec["algo"]),
+                "version": provenance(),
+                "system": system_info(),
+            },
             indent=2,
             default=str,
         )

@@ -2,7 +2,6 @@
 otherwise; pooled comparisons do not depend on the order of the folders."""
 
 import importlib.util
-import inspect
 import json
 import sys
 from pathlib import Path
@@ -268,19 +267,21 @@ def flat_kwargs(kwargs: dict) -> dict:
     return flat
 
 
-def constructor_defaults(run, algo: str) -> dict:
-    """The algorithm's keyword defaults (its own and its parents'), PRIDE's generator_kwargs spelled out."""
-    defaults = {}
-    for cls in reversed(run.algorithm_class(algo).__mro__):
-        if "__init__" in vars(cls) and cls is not object:
-            parameters = inspect.signature(cls.__init__).parameters.values()
-            defaults.update({p.name: p.default for p in parameters if p.default is not p.empty})
-    if algo == "pride":
-        from sb3_pride.common.generator import TransitionGenerator
+#: what a run that does not record its algorithm's defaults ran with, where today's default differs from it (none so
+#: far): {algo: {argument: the default it ran with}}
+DEFAULTS_BEFORE_RECORDED: dict[str, dict] = {}
 
-        parameters = inspect.signature(TransitionGenerator.__init__).parameters.values()
-        defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
-    return defaults
+
+def recorded_defaults(run, settings: dict) -> dict:
+    """The defaults a committed run was made with: those it recorded, else today's with the older values above."""
+    if "defaults" in settings:
+        return settings["defaults"]
+    return {**run.algorithm_defaults(settings["algo"]), **DEFAULTS_BEFORE_RECORDED.get(settings["algo"], {})}
+
+
+def as_json(value):
+    """A setting as settings.json holds it (tuples as lists, anything else JSON lacks as its str)."""
+    return json.loads(json.dumps(value, default=str))
 
 
 @pytest.mark.slow
@@ -297,11 +298,12 @@ def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(gr
                 kwargs["max_feedback"] = spec["feedback"]
             if spec["algo"] == "pride":
                 kwargs["synthetic_ratio"] = spec["ratio"]
-            defaults = flat_kwargs(constructor_defaults(grid.run, spec["algo"]))
             settings = json.loads((ROOT / "benchmarks/results/runs" / grid.run.run_name(spec) / "settings.json").read_text())
-            now, then = flat_kwargs(kwargs), flat_kwargs(settings["kwargs"])
-            differ = {k: (now.get(k, defaults.get(k)), then.get(k, defaults.get(k))) for k in {*now, *then}
-                      if now.get(k, defaults.get(k)) != then.get(k, defaults.get(k))}  # fmt: skip
+            defaults_now = flat_kwargs(grid.run.algorithm_defaults(spec["algo"]))
+            defaults_then = flat_kwargs(recorded_defaults(grid.run, settings))
+            now = as_json({**defaults_now, **flat_kwargs(kwargs)})
+            then = as_json({**defaults_then, **flat_kwargs(settings["kwargs"])})
+            differ = {k: (now.get(k), then.get(k)) for k in {*now, *then} if now.get(k) != then.get(k)}
             if differ:
                 mismatches.append(f"{grid.run.run_name(spec)}: {differ}")
     assert not mismatches, "\n".join(mismatches[:20])
@@ -353,7 +355,8 @@ def test_dotted_overrides_merge_into_the_yaml_entrys_nested_dict(run):
 
 @pytest.mark.slow
 def test_a_run_records_the_package_version_the_commit_and_the_libraries(run, tmp_path):
-    """settings.json: the sb3_pride version, the git commit and whether the tree was dirty, and library versions."""
+    """settings.json: the sb3_pride version, the git commit and whether the tree was dirty, library versions, and the
+    algorithm's defaults beside the arguments given."""
     from importlib import metadata
 
     spec = dict(algo="sac", task="walker-walk", seed=0, feedback=None, ratio=None, tier="cpu", eval_freq=200,
@@ -364,6 +367,7 @@ def test_a_run_records_the_package_version_the_commit_and_the_libraries(run, tmp
     assert len(settings["version"]["commit"]) == 40 and isinstance(settings["version"]["dirty"], bool)
     assert {"Stable-Baselines3", "PyTorch", "Gymnasium", "Numpy", "mujoco", "dm-control", "CPU"} <= set(settings["system"])
     assert settings["kwargs"]["policy_kwargs"]["net_arch"] == [32, 32]
+    assert settings["defaults"]["learning_rate"] == 3e-4 and settings["defaults"]["buffer_size"] == 1_000_000  # SAC's
     assert json.loads((tmp_path / "run" / "result.json").read_text())["final_return"] is not None
 
 
