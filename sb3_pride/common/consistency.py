@@ -144,6 +144,8 @@ class ConsistencyModel(th.nn.Module):
             for column in (observations, actions, next_observations)
         ]
         size, n_members, batch_size = len(columns[0]), self.next_state_predictor.weights[0].shape[0], self.settings.batch_size
+        for group in self.optimizer.param_groups:  # the settings' rate, also where a loaded optimizer saved another
+            group["lr"] = self.settings.learning_rate
         loss_value = float("nan")
         for _ in range(self.settings.epochs):
             orders = th.as_tensor(np.stack([rng.permutation(size) for _ in range(n_members)]), device=device)
