@@ -212,15 +212,11 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
 
 def provenance() -> dict[str, Any]:
     """
-    What code made a run: the installed ``sb3_pride`` version, the git commit of this tree and whether the tree had
-    uncommitted changes (``None`` outside a git checkout).
+    What code made a run: the version of the ``sb3_pride`` imported (its ``__version__``; an editable install's
+    metadata keeps the version it was installed at), the git commit of this tree and whether the tree had uncommitted
+    changes (``None`` outside a git checkout).
     """
-    from importlib import metadata
-
-    try:
-        version = metadata.version("sb3_pride")
-    except metadata.PackageNotFoundError:
-        version = None
+    import sb3_pride
 
     def git(*argv: str) -> str | None:
         try:
@@ -231,7 +227,7 @@ def provenance() -> dict[str, Any]:
 
     commit = git("rev-parse", "HEAD")
     status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {"sb3_pride": version, "commit": commit, "dirty": None if status is None else bool(status)}
+    return {"sb3_pride": sb3_pride.__version__, "commit": commit, "dirty": None if status is None else bool(status)}
 
 
 def system_info() -> dict[str, str]:
