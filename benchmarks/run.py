@@ -120,30 +120,37 @@ def algorithm_class(algo: str) -> type:
     return {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
 
 
-def constructor_arguments(algo: str) -> set[str]:
-    """The keyword arguments the algorithm's constructor takes: its own and, through ``**kwargs``, its parents'."""
-    names: set[str] = set()
+def constructor_parameters(algo: str) -> list[inspect.Parameter]:
+    """
+    The keyword parameters the algorithm's constructor takes: its own and, through ``**kwargs``, its parents' (a
+    parent's after its child's, so a subclass's default comes first).
+    """
+    found: list[inspect.Parameter] = []
     for cls in algorithm_class(algo).__mro__:
         if "__init__" not in vars(cls):
             continue
         parameters = inspect.signature(cls.__init__).parameters.values()
-        names |= {p.name for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY)}
+        found += [p for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "self"]
         if not any(p.kind == p.VAR_KEYWORD for p in parameters):
             break
-    return names - {"self"}
+    return found
+
+
+def constructor_arguments(algo: str) -> set[str]:
+    """The keyword arguments the algorithm's constructor takes: its own and, through ``**kwargs``, its parents'."""
+    return {p.name for p in constructor_parameters(algo)}
 
 
 def algorithm_defaults(algo: str) -> dict[str, Any]:
     """
-    The algorithm's keyword defaults, its own and its parents' (PRIDE's ``generator_kwargs`` spelled out as the
+    The defaults of the algorithm's constructor arguments (PRIDE's ``generator_kwargs`` spelled out as the
     generator's): a run records them beside the arguments it was given, so that what it ran stays known when a default
     changes.
     """
     defaults: dict[str, Any] = {}
-    for cls in reversed(algorithm_class(algo).__mro__):
-        if "__init__" in vars(cls) and cls is not object:
-            parameters = inspect.signature(cls.__init__).parameters.values()
-            defaults.update({p.name: p.default for p in parameters if p.default is not p.empty and p.name[0] != "_"})
+    for p in reversed(constructor_parameters(algo)):  # a subclass's default overrides its parent's
+        if p.default is not p.empty and not p.name.startswith("_"):
+            defaults[p.name] = p.default
     if algo == "pride":
         from sb3_pride.common.generator import TransitionGenerator
 

@@ -273,10 +273,12 @@ DEFAULTS_BEFORE_RECORDED: dict[str, dict] = {}
 
 
 def recorded_defaults(run, settings: dict) -> dict:
-    """The defaults a committed run was made with: those it recorded, else today's with the older values above."""
+    """The defaults a committed run was made with, for today's arguments: those it recorded, else the older values
+    above; today's for an argument it knew nothing of."""
+    today = run.algorithm_defaults(settings["algo"])
     if "defaults" in settings:
-        return settings["defaults"]
-    return {**run.algorithm_defaults(settings["algo"]), **DEFAULTS_BEFORE_RECORDED.get(settings["algo"], {})}
+        return {**today, **{k: v for k, v in settings["defaults"].items() if k in today}}
+    return {**today, **DEFAULTS_BEFORE_RECORDED.get(settings["algo"], {})}
 
 
 def as_json(value):
