@@ -114,13 +114,16 @@ def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_
     assert saved_state.keys() == loaded_state.keys() and len(saved_state) > 0
     for key in saved_state:
         assert th.equal(saved_state[key]["exp_avg"], loaded_state[key]["exp_avg"])
-    # its settings may change when loading, but it cannot be turned off (nor on, for a model saved without it)
+    # its settings may change when loading, but it cannot be turned off (nor on, for a model saved without it), nor
+    # change its optimizer
     assert PEBBLE.load(tmp_path / "model", dynamics_consistency={"epochs": 3}).consistency_model.settings.epochs == 3
     changed = PEBBLE.load(tmp_path / "model", dynamics_consistency={"learning_rate": 1e-4})  # the saved Adam had 3e-4
     changed.consistency_model.train_epochs(s[:10], a[:10], s_next[:10], np.random.default_rng(0))
     assert {group["lr"] for group in changed.consistency_model.optimizer.param_groups} == {1e-4}
     with pytest.raises(ValueError, match=r"dynamics_consistency: .* saved with it on"):
         PEBBLE.load(tmp_path / "model", dynamics_consistency=False)
+    with pytest.raises(ValueError, match=r"dynamics_consistency: .* optimizer='adam', .* optimizer='sgd'"):
+        PEBBLE.load(tmp_path / "model", dynamics_consistency={"optimizer": "sgd"})  # Adam's state into SGD
     PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs).save(tmp_path / "plain")
     with pytest.raises(ValueError, match=r"dynamics_consistency: .* saved with it off"):
         PEBBLE.load(tmp_path / "plain", dynamics_consistency=True)

@@ -419,19 +419,25 @@ class PEBBLE(SAC):
              print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
         """
         SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``, and
-        ``dynamics_consistency`` may change its settings but not turn it on or off (its heads are saved with the model).
+        ``dynamics_consistency`` may change its settings but not turn it on or off (its heads are saved with the model)
+        nor change its optimizer (whose state is saved too).
         """
         if "dynamics_consistency" in kwargs:
             saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-            was_on, now_on = (
-                make_option("dynamics_consistency", value, DynamicsConsistency) is not None
+            was, now = (
+                make_option("dynamics_consistency", value, DynamicsConsistency)
                 for value in ((saved or {}).get("dynamics_consistency", False), kwargs["dynamics_consistency"])
             )
-            if was_on != now_on:
+            if (was is None) != (now is None):
                 raise ValueError(
-                    f"dynamics_consistency: the model at {path} was saved with it {'on' if was_on else 'off'}, and "
-                    "loading cannot turn it " + ("off" if was_on else "on") + "; leave dynamics_consistency out, or "
-                    "give settings that keep it " + ("on" if was_on else "off")
+                    f"dynamics_consistency: the model at {path} was saved with it {'off' if was is None else 'on'}, "
+                    "and loading cannot turn it " + ("on" if was is None else "off") + "; leave dynamics_consistency "
+                    "out, or give settings that keep it " + ("off" if was is None else "on")
+                )
+            if was is not None and now is not None and was.optimizer != now.optimizer:
+                raise ValueError(
+                    f"dynamics_consistency: the model at {path} was saved with optimizer={was.optimizer!r}, whose "
+                    f"state it holds, and cannot load into optimizer={now.optimizer!r}; leave optimizer out"
                 )
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         if env is not None and model.env is not None:
