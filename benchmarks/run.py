@@ -21,6 +21,7 @@ Named configurations (``hyperparams/<tier>/variants.yml``) and grids of them (``
 """
 
 import argparse
+import dataclasses
 import inspect
 import itertools
 import json
@@ -144,7 +145,7 @@ def constructor_arguments(algo: str) -> set[str]:
 def algorithm_defaults(algo: str) -> dict[str, Any]:
     """
     The defaults of the algorithm's constructor arguments (PRIDE's ``generator_kwargs`` spelled out as the
-    generator's): a run records them beside the arguments it was given, so that what it ran stays known when a default
+    generator's, and under ``option_settings`` the settings an option turned on with True takes): a run records them beside the arguments it was given, so that what it ran stays known when a default
     changes.
     """
     defaults: dict[str, Any] = {}
@@ -156,6 +157,9 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
 
         parameters = inspect.signature(TransitionGenerator.__init__).parameters.values()
         defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
+    if algo != "sac":  # what True (or a dict leaving settings out) means for each option
+        options = algorithm_class(algo).option_settings  # type: ignore[attr-defined]
+        defaults["option_settings"] = {name: dataclasses.asdict(cls()) for name, cls in options.items()}
     return defaults
 
 

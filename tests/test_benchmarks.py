@@ -286,6 +286,17 @@ def as_json(value):
     return json.loads(json.dumps(value, default=str))
 
 
+def what_ran(defaults: dict, kwargs: dict) -> dict:
+    """The settings a run takes from these defaults and kwargs, in one namespace: each option that is on (True, or a
+    dict of some settings) spelled out whole, the settings it leaves out at their defaults."""
+    options = defaults.get("option_settings", {})
+    merged = {**flat_kwargs({k: v for k, v in defaults.items() if k != "option_settings"}), **flat_kwargs(kwargs)}
+    for name, settings in options.items():
+        if merged.get(name) is True or isinstance(merged.get(name), dict):
+            merged[name] = {**settings, **(merged[name] if isinstance(merged[name], dict) else {})}
+    return as_json(merged)
+
+
 @pytest.mark.slow
 def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(grid):
     """For every run of every committed grid file, the settings the run recorded equal what the grid would run today
@@ -301,10 +312,8 @@ def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(gr
             if spec["algo"] == "pride":
                 kwargs["synthetic_ratio"] = spec["ratio"]
             settings = json.loads((ROOT / "benchmarks/results/runs" / grid.run.run_name(spec) / "settings.json").read_text())
-            defaults_now = flat_kwargs(grid.run.algorithm_defaults(spec["algo"]))
-            defaults_then = flat_kwargs(recorded_defaults(grid.run, settings))
-            now = as_json({**defaults_now, **flat_kwargs(kwargs)})
-            then = as_json({**defaults_then, **flat_kwargs(settings["kwargs"])})
+            now = what_ran(grid.run.algorithm_defaults(spec["algo"]), kwargs)
+            then = what_ran(recorded_defaults(grid.run, settings), settings["kwargs"])
             differ = {k: (now.get(k), then.get(k)) for k in {*now, *then} if now.get(k) != then.get(k)}
             if differ:
                 mismatches.append(f"{grid.run.run_name(spec)}: {differ}")

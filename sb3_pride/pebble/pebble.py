@@ -168,6 +168,13 @@ class PEBBLE(SAC):
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
     #: the replay buffer class this algorithm needs (a user's ``replay_buffer_class`` must subclass it)
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = PreferenceReplayBuffer
+    #: the options given as False (off), True (the published settings) or a dict, and the class of their settings
+    option_settings: ClassVar[dict[str, type]] = {
+        "robust_labels": RobustLabels,
+        "pseudo_labels": PseudoLabels,
+        "dynamics_consistency": DynamicsConsistency,
+        "exploration_bonus": ExplorationBonus,
+    }
     replay_buffer: PreferenceReplayBuffer
     reward_model: RewardEnsemble
     #: D, the teacher's answers (made by ``_setup_model``, once the input size is known)
@@ -251,11 +258,12 @@ class PEBBLE(SAC):
         check_real("reward_learning_rate", reward_learning_rate, lambda lr: 0 < lr < np.inf, "> 0 and finite")
         temporal_crop = check_temporal_crop(temporal_crop, segment_length)
         # checked before anything is made
-        label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
-        make_option("pseudo_labels", pseudo_labels, PseudoLabels)
+        options = dict(robust_labels=robust_labels, pseudo_labels=pseudo_labels,
+                       dynamics_consistency=dynamics_consistency, exploration_bonus=exploration_bonus)  # fmt: skip
+        settings = {name: make_option(name, value, self.option_settings[name]) for name, value in options.items()}
+        label_selection: RobustLabels | None = settings["robust_labels"]
         check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
-        make_option("dynamics_consistency", dynamics_consistency, DynamicsConsistency)
-        if make_option("exploration_bonus", exploration_bonus, ExplorationBonus) is not None and ensemble_size < 2:
+        if settings["exploration_bonus"] is not None and ensemble_size < 2:
             raise ValueError(f"exploration_bonus needs ensemble_size >= 2 (its σ is the members' spread), got {ensemble_size}")
 
         if reward_early_stop is not None:
