@@ -25,7 +25,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np
 import torch as th
-from run import load_variants, merge, parse_overrides
+from run import load_variants, merge, parse_overrides, provenance
 from stable_baselines3 import SAC
 
 import sb3_pride
@@ -162,7 +162,7 @@ def main() -> None:
         {name: merge(tier_kwargs(algo, args.env, args.as_tier), changed) for name, (algo, changed) in variants.items()}
     )
     report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "as_tier": args.as_tier,
-              "seed": args.seed, "kwargs": kwargs, "runs": results, "medians": medians}  # fmt: skip
+              "seed": args.seed, "version": provenance(), "kwargs": kwargs, "runs": results, "medians": medians}  # fmt: skip
     for algo, median in medians.items():
         line = f"{algo:16s} {median['seconds']:7.1f} s"
         for base in ("sac", "pebble"):
