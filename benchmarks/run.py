@@ -145,8 +145,8 @@ def constructor_arguments(algo: str) -> set[str]:
 def algorithm_defaults(algo: str) -> dict[str, Any]:
     """
     The defaults of the algorithm's constructor arguments (PRIDE's ``generator_kwargs`` spelled out as the
-    generator's, and under ``option_settings`` the settings an option turned on with True takes): a run records them beside the arguments it was given, so that what it ran stays known when a default
-    changes.
+    generator's, and under ``option_settings`` the settings an option turned on with True takes): a run records them
+    beside the arguments it was given, so that what it ran stays known when a default changes.
     """
     defaults: dict[str, Any] = {}
     for p in reversed(constructor_parameters(algo)):  # a subclass's default overrides its parent's

@@ -292,8 +292,9 @@ def what_ran(defaults: dict, kwargs: dict) -> dict:
     options = defaults.get("option_settings", {})
     merged = {**flat_kwargs({k: v for k, v in defaults.items() if k != "option_settings"}), **flat_kwargs(kwargs)}
     for name, settings in options.items():
-        if merged.get(name) is True or isinstance(merged.get(name), dict):
-            merged[name] = {**settings, **(merged[name] if isinstance(merged[name], dict) else {})}
+        given = merged.get(name)
+        if given is True or isinstance(given, dict):
+            merged[name] = {**settings, **(given if isinstance(given, dict) else {})}
     return as_json(merged)
 
 
