@@ -170,6 +170,17 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
     PEBBLE("MlpPolicy", VecNormalize(make_vec_env("Pendulum-v1"), norm_reward=False), **tiny_kwargs)
 
 
+def test_option_reads_each_options_settings(tiny_kwargs):
+    from sb3_pride.common.consistency import DynamicsConsistency
+
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", dynamics_consistency={"epochs": 3}, **tiny_kwargs)
+    settings = model.option("dynamics_consistency")
+    assert isinstance(settings, DynamicsConsistency) and settings.epochs == 3
+    assert all(model.option(name) is None for name in ("robust_labels", "pseudo_labels", "exploration_bonus"))
+    with pytest.raises(ValueError, match="name must be one of .*dynamics_consistency.*got 'consistency'"):
+        model.option("consistency")
+
+
 def test_a_custom_teacher_is_checked(tiny_kwargs):
     def teacher(pairs):
         return np.full(len(pairs), 2.0)

@@ -433,7 +433,7 @@ class PEBBLE(SAC):
         if "dynamics_consistency" in kwargs:
             saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
             was, now = (
-                make_option("dynamics_consistency", value, DynamicsConsistency)
+                make_option("dynamics_consistency", value, cls.option_settings["dynamics_consistency"])
                 for value in ((saved or {}).get("dynamics_consistency", False), kwargs["dynamics_consistency"])
             )
             if (was is None) != (now is None):
@@ -452,6 +452,18 @@ class PEBBLE(SAC):
             model._check_env(model.env, model.segment_length, model.verbose)
         return model
 
+    def option(self, name: str) -> Any:
+        """
+        The settings of one of the options of ``option_settings`` (a ``RobustLabels``, ``PseudoLabels``,
+        ``DynamicsConsistency`` or ``ExplorationBonus``), or None where it is off.
+
+        :param name: the option's constructor argument, e.g. ``"dynamics_consistency"``
+        """
+        if name not in self.option_settings:
+            raise ValueError(f"name must be one of {', '.join(sorted(self.option_settings))}, got {name!r}")
+        # models saved before an option existed have no attribute for it: off
+        return make_option(name, getattr(self, name, False), self.option_settings[name])
+
     def _setup_model(self) -> None:
         if "_scripted_teacher" in self.__dict__:  # a model saved by version 0.1.0: its scripted teacher, random state kept
             saved = self.__dict__.pop("_scripted_teacher")
@@ -467,7 +479,7 @@ class PEBBLE(SAC):
             learning_rate=self.reward_learning_rate,
             device=self.device,
         )
-        settings = make_option("dynamics_consistency", getattr(self, "dynamics_consistency", False), DynamicsConsistency)
+        settings = self.option("dynamics_consistency")
         #: REED's consistency heads on r̂'s encoder (None: off), saved with the model
         self.consistency_model = None if settings is None else ConsistencyModel(self.reward_model, obs_dim, settings)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own
@@ -549,7 +561,7 @@ class PEBBLE(SAC):
         RUNE's bonus (``exploration_bonus``) on SAC's minibatches once r̂ has learned from labels (after pre-training);
         logs β_t. β_t counts ``num_timesteps``, so ``learn(reset_num_timesteps=True)`` starts it again at β_0.
         """
-        settings = make_option("exploration_bonus", getattr(self, "exploration_bonus", False), ExplorationBonus)
+        settings = self.option("exploration_bonus")
         active = settings is not None and not self.in_pretraining and len(self.preferences) > 0
         self.replay_buffer.reward_bonus = (
             functools.partial(self.exploration_bonus_rewards, settings=settings) if active else None
@@ -881,7 +893,7 @@ class PEBBLE(SAC):
             transitions = self.consistency_transitions(consistency_model.settings.max_transitions)
             loss = consistency_model.train_epochs(*transitions, self.preference_rng)
             self.logger.record("reward_model/consistency_loss", loss)
-        pseudo_labels = make_option("pseudo_labels", getattr(self, "pseudo_labels", False), PseudoLabels)
+        pseudo_labels = self.option("pseudo_labels")
         loss, accuracy, epochs = self.reward_model.train_epochs(
             self.preferences,
             self.reward_epochs,
