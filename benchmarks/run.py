@@ -130,7 +130,7 @@ def constructor_parameters(algo: str) -> list[inspect.Parameter]:
     for cls in algorithm_class(algo).__mro__:
         if "__init__" not in vars(cls):
             continue
-        parameters = inspect.signature(cls.__init__).parameters.values()
+        parameters = inspect.signature(vars(cls)["__init__"]).parameters.values()
         found += [p for p in parameters if p.kind in (p.POSITIONAL_OR_KEYWORD, p.KEYWORD_ONLY) and p.name != "self"]
         if not any(p.kind == p.VAR_KEYWORD for p in parameters):
             break
@@ -291,9 +291,11 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
     model_kwargs = dict(kwargs)
     if spec.get("seconds_per_answer"):  # the teacher answers at a person's pace
-        from sb3_pride.common.teachers import PacedTeacher, make_teacher
+        from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
 
         teacher = make_teacher(kwargs["teacher"], seed=spec["seed"])
+        if isinstance(teacher, InteractiveTeacher):
+            raise SystemExit(f"seconds_per_answer paces a scripted teacher, and teacher={kwargs['teacher']!r} is a person")
         model_kwargs["teacher"] = PacedTeacher(teacher, spec["seconds_per_answer"])
     model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **model_kwargs)
     folder.mkdir(parents=True, exist_ok=True)
