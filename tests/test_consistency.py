@@ -134,27 +134,18 @@ def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_
     assert pd.read_csv(tmp_path / "progress.csv")["reward_model/consistency_loss"].notna().any()
 
 
-def test_pride_adds_its_synthetic_transitions_to_the_consistency_pass(tiny_kwargs):
-    with pytest.raises(ValueError, match="synthetic_consistency"):
-        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=1.0)
-    with pytest.raises(ValueError, match="dynamics_consistency"):
-        PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=0.5)  # nothing to add them to
-    PRIDE("MlpPolicy", "Pendulum-v1", synthetic_consistency=0.5, dynamics_consistency={})  # {}: on, the defaults
+def test_prides_consistency_pass_takes_the_real_transitions_only(tiny_kwargs):
     model = PRIDE(
-        "MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency=True, synthetic_consistency=0.5,
+        "MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency=True,
         synthetic_start=0, synthetic_ramp=0, synthetic_samples=100, diffusion_interval=100,
         generator_kwargs=dict(width=32, n_blocks=1, train_steps=20, keep_quantile=1.0, fidelity_check=False), **tiny_kwargs,
     )  # fmt: skip
     model.learn(400)
-    real = model.real_buffer.size()
     assert model.replay_buffer.synthetic.size() == 100
     s, _, s_next = model.consistency_transitions()
-    assert len(s) == real + 100  # every real transition, and synthetic ones up to half of the pass
-    np.testing.assert_array_equal(s[real:], model.replay_buffer.synthetic.observations[:100, 0])
-    np.testing.assert_array_equal(s_next[real:], model.replay_buffer.synthetic.next_observations[:100, 0])
-    model.synthetic_consistency = 0.1  # c / (1 - c) times as many synthetic as real ones, below the cap
-    assert len(model.consistency_transitions()[0]) == real + round(0.1 * real / 0.9)
-    assert len(model.consistency_transitions(limit=100)[0]) == 100  # 90 real ones drawn, 10 synthetic
+    real = model.real_buffer.size()
+    assert len(s) == real  # the generator's samples teach SAC, not r̂'s encoder
+    np.testing.assert_array_equal(s_next, model.real_buffer.next_observations[:real, 0])
 
 
 def test_consistency_transitions_keep_each_envs_transitions_together(tiny_kwargs):

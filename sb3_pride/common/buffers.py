@@ -212,11 +212,6 @@ class SyntheticReplayBuffer(ReplayBuffer):
         self.full = self.full or self.pos + n >= self.buffer_size
         self.pos = int((self.pos + n) % self.buffer_size)
 
-    def transitions(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(s, a, s') of the first ``n`` stored transitions (all of them at most)."""
-        n = min(max(n, 0), self.size())
-        return self.observations[:n, 0], self.actions[:n, 0], self.next_observations[:n, 0]
-
     def relabel(self, reward_fn: RewardFn, batch_size: int = 16_384) -> None:
         """Rewrite every synthetic reward with r̂."""
         relabel_rewards(self, reward_fn, batch_size)

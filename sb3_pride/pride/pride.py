@@ -48,9 +48,6 @@ class PRIDE(PEBBLE):
     :param diffusion_interval: R, env steps between retrain-and-generate (paper: 10k)
     :param synthetic_samples: transitions generated (and kept) per retrain; they replace the synthetic buffer
     :param synthetic_buffer_size: capacity of the synthetic buffer (default: ``synthetic_samples``)
-    :param synthetic_consistency: beyond the paper: with ``dynamics_consistency`` (REED), the share of each of its
-        passes made of B_syn's transitions (at most all of B_syn), so that r̂'s encoder learns the dynamics from the
-        generator's samples too. 0: real transitions only
     :param generator_kwargs: ``TransitionGenerator`` arguments: the diffusion's sizes (``width``, ``n_blocks``,
         ``train_steps``, ``sample_steps``), ``warm_start``, ``normalization``, ``model_state_change``, ``generation``,
         ``anchor_noise``, ``window``, ``keep_quantile``, ``filter``, ``fidelity_check``, ``diffusion_kwargs``,
@@ -72,12 +69,11 @@ class PRIDE(PEBBLE):
         diffusion_interval: int = 5000,
         synthetic_samples: int = 10_000,
         synthetic_buffer_size: int | None = None,
-        synthetic_consistency: float = 0.0,
         generator_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
     ):
-        check_synthetic_settings(synthetic_ratio, synthetic_on_top, synthetic_consistency, pebble_kwargs)
+        check_synthetic_settings(synthetic_ratio, synthetic_on_top)
         check_positive_ints(diffusion_interval=diffusion_interval, synthetic_samples=synthetic_samples)
         if synthetic_buffer_size is not None:
             check_positive_ints(synthetic_buffer_size=synthetic_buffer_size)
@@ -96,7 +92,6 @@ class PRIDE(PEBBLE):
         self.diffusion_interval = diffusion_interval
         self.synthetic_samples = synthetic_samples
         self.synthetic_buffer_size = synthetic_buffer_size
-        self.synthetic_consistency = float(synthetic_consistency)
         self.generator_kwargs = dict(generator_kwargs or {})
         # learning state, saved with the model; whether transitions hold a terminal flag is known at the first retrain
         self.model_terminals: bool | None = None
@@ -185,14 +180,6 @@ class PRIDE(PEBBLE):
             rows = rows[-int(np.ceil(self.generator.window / buffer.n_envs)) :]
         terminals = buffer.dones[rows] * (1.0 - buffer.timeouts[rows])
         return buffer.observations[rows], buffer.actions[rows], buffer.next_observations[rows], terminals
-
-    def consistency_transitions(self, limit: int | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """REED's (s, a, s'): the real ones and, with ``synthetic_consistency`` c, c / (1 − c) × as many of B_syn's."""
-        share = self.synthetic_consistency
-        real = super().consistency_transitions(None if limit is None else round((1.0 - share) * limit))
-        n_made = round(share * len(real[0]) / (1.0 - share))
-        made = self.replay_buffer.synthetic.transitions(n_made if limit is None else min(n_made, limit - len(real[0])))
-        return tuple(np.concatenate(pair) for pair in zip(real, made, strict=True))  # type: ignore[return-value]
 
     def retrain_generator(self) -> GenerationReport:
         """

@@ -13,8 +13,7 @@ from typing import Any
 import numpy as np
 
 from sb3_pride.common.generator import TransitionGenerator
-from sb3_pride.common.consistency import DynamicsConsistency
-from sb3_pride.common.utils import check_real, make_option, merge_kwargs
+from sb3_pride.common.utils import check_real, merge_kwargs
 
 #: the paper's PRIDE: synthetic data from the first reward model on at full u, in place of real rows in each
 #: minibatch, from an unconditional diffusion model of [s, a, s'] refitted from scratch on all real transitions
@@ -112,13 +111,8 @@ def check_generator_kwargs(generator_kwargs: Any, other_kwargs: dict[str, Any]) 
         raise ValueError(f"generator_kwargs must be valid TransitionGenerator arguments: {error}") from None
 
 
-def check_synthetic_settings(
-    synthetic_ratio: Any, synthetic_on_top: Any, synthetic_consistency: Any, pebble_kwargs: dict[str, Any]
-) -> None:
-    """
-    PRIDE's synthetic shares: u in [0, 1], the rows on top only with u < 1, and ``synthetic_consistency`` in [0, 1),
-    above 0 only with REED's consistency pre-training on.
-    """
+def check_synthetic_settings(synthetic_ratio: Any, synthetic_on_top: Any) -> None:
+    """PRIDE's synthetic share u in [0, 1], and the rows on top only with u < 1."""
     check_real("synthetic_ratio", synthetic_ratio, lambda u: 0.0 <= u <= 1.0, "in [0, 1]")
     if not isinstance(synthetic_on_top, (bool, np.bool_)):
         raise ValueError(f"synthetic_on_top must be True or False, got {synthetic_on_top!r}")
@@ -127,13 +121,6 @@ def check_synthetic_settings(
             "synthetic_on_top=True needs synthetic_ratio < 1 (each minibatch holds batch_size / (1 - u) rows, "
             "batch_size of them real), got synthetic_ratio=1.0; for minibatches of synthetic rows only, set "
             "synthetic_on_top=False"
-        )
-    check_real("synthetic_consistency", synthetic_consistency, lambda share: 0.0 <= share < 1.0, "in [0, 1)")
-    consistency = make_option("dynamics_consistency", pebble_kwargs.get("dynamics_consistency", False), DynamicsConsistency)
-    if synthetic_consistency > 0 and consistency is None:
-        raise ValueError(
-            f"synthetic_consistency={synthetic_consistency} adds synthetic transitions to REED's consistency "
-            "pre-training, which is off: set dynamics_consistency=True as well"
         )
 
 
