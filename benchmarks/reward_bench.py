@@ -66,9 +66,9 @@ CONFIGS: dict[str, dict[str, Any]] = {
     # query selection, in --sessions mode only (each session chooses among 10x candidates with the model so far)
     "disagreement queries": {"query_selection": "disagreement"},
     # REED's self-supervised consistency pre-training of r̂'s encoder on the training episodes' transitions, with
-    # Adam (the package's default) and with REED's SGD; PRIDE's variant adds as many transitions made by its
-    # generator (fitted on the training episodes) to each pass (PRIDE itself adds at most its synthetic buffer, 10k by
-    # default). Every pass takes all the training transitions (in a run, the pass of session i sees the steps so far)
+    # Adam (the package's default) and with REED's SGD; "+ synthetic" adds as many transitions made by PRIDE's
+    # generator (fitted on the training episodes) to each pass, which this bench tried and PRIDE does not offer. Every
+    # pass takes all the training transitions (in a run, the pass of session i sees the steps so far)
     "consistency": {"dynamics_consistency": True},
     "consistency (sgd)": {"dynamics_consistency": {"optimizer": "sgd"}},
     "consistency, 2 epochs": {"dynamics_consistency": {"epochs": 2}},  # the SSL steps of "+ synthetic" (2x data)

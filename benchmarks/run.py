@@ -293,9 +293,10 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     if spec.get("seconds_per_answer"):  # the teacher answers at a person's pace
         from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
 
-        teacher = make_teacher(kwargs["teacher"], seed=spec["seed"])
+        name = kwargs.get("teacher", algorithm_defaults(spec["algo"])["teacher"])
+        teacher = make_teacher(name, seed=spec["seed"])
         if isinstance(teacher, InteractiveTeacher):
-            raise SystemExit(f"seconds_per_answer paces a scripted teacher, and teacher={kwargs['teacher']!r} is a person")
+            raise SystemExit(f"seconds_per_answer paces a scripted teacher, and teacher={name!r} is a person")
         model_kwargs["teacher"] = PacedTeacher(teacher, spec["seconds_per_answer"])
     model = algo("MlpPolicy", env, seed=spec["seed"], verbose=0, **model_kwargs)
     folder.mkdir(parents=True, exist_ok=True)

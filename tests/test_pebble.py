@@ -177,7 +177,9 @@ def test_option_reads_each_options_settings(tiny_kwargs):
     settings = model.option("dynamics_consistency")
     assert isinstance(settings, DynamicsConsistency) and settings.epochs == 3
     assert all(model.option(name) is None for name in ("robust_labels", "pseudo_labels", "exploration_bonus"))
-    with pytest.raises(ValueError, match="name must be one of .*dynamics_consistency.*got 'consistency'"):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", dynamics_consistency={}, **tiny_kwargs)  # {}: on, at its defaults
+    assert model.option("dynamics_consistency") == DynamicsConsistency()
+    with pytest.raises(ValueError, match=r"name must be one of .*dynamics_consistency.*got 'consistency'"):
         model.option("consistency")
 
 

@@ -387,6 +387,15 @@ def test_a_model_saved_by_version_0_1_0_loads_with_its_generator_and_teacher():
     model.learn(100, reset_num_timesteps=False)
 
 
+def test_a_model_saved_with_synthetic_consistency_loads_with_a_warning(tiny_kwargs, tmp_path):
+    model = PRIDE("MlpPolicy", "Pendulum-v1", **tiny_kwargs)
+    model.synthetic_consistency = 0.5  # what a development version of 0.2.0 saved
+    model.save(tmp_path / "model")
+    with pytest.warns(UserWarning, match="synthetic_consistency, which PRIDE no longer offers"):
+        loaded = PRIDE.load(tmp_path / "model")
+    assert not hasattr(loaded, "synthetic_consistency")
+
+
 def test_generator_settings_as_keywords_of_their_own_are_pointed_to_generator_kwargs():
     with pytest.raises(ValueError, match=r"diffusion_width -> generator_kwargs=\{'width': \.\.\.\}"):
         PRIDE("MlpPolicy", "Pendulum-v1", diffusion_width=64)

@@ -454,13 +454,14 @@ class PEBBLE(SAC):
 
     def option(self, name: str) -> Any:
         """
-        The settings of one of the options of ``option_settings`` (a ``RobustLabels``, ``PseudoLabels``,
-        ``DynamicsConsistency`` or ``ExplorationBonus``), or None where it is off.
+        The settings one of the options of ``option_settings`` was given, made anew from the constructor's value.
+        For ``robust_labels`` these are the settings only: the running selection is ``label_selection``.
 
         :param name: the option's constructor argument, e.g. ``"dynamics_consistency"``
+        :return: a ``RobustLabels``, ``PseudoLabels``, ``DynamicsConsistency`` or ``ExplorationBonus``; None where the
+            option is off
         """
-        if name not in self.option_settings:
-            raise ValueError(f"name must be one of {', '.join(sorted(self.option_settings))}, got {name!r}")
+        check_choice("name", name, tuple(self.option_settings))
         # models saved before an option existed have no attribute for it: off
         return make_option(name, getattr(self, name, False), self.option_settings[name])
 

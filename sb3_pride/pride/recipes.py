@@ -8,6 +8,7 @@ it (``SYNTHER_SIZES`` for theirs).
 """
 
 import copy
+import warnings
 from typing import Any
 
 import numpy as np
@@ -127,6 +128,14 @@ def check_synthetic_settings(synthetic_ratio: Any, synthetic_on_top: Any) -> Non
 def migrate_saved_settings(saved: dict[str, Any]) -> dict[str, Any]:
     """
     The ``generator_kwargs`` of a model saved by version 0.1.0, from the flat settings it holds (removed from
-    ``saved``, a model's ``__dict__``); an empty dict for a model saved by this version.
+    ``saved``, a model's ``__dict__``); an empty dict for a model saved by this version. A development model's
+    ``synthetic_consistency`` (the generator's transitions in REED's consistency passes, not kept) is dropped, with a
+    warning where it was on.
     """
+    if saved.pop("synthetic_consistency", 0.0):
+        warnings.warn(
+            "this model was saved with synthetic_consistency, which PRIDE no longer offers (the generator's transitions "
+            "did not help reward learning): its consistency passes now take the real transitions only",
+            stacklevel=2,
+        )
     return {new: saved.pop(old) for old, new in RENAMED_SETTINGS.items() if old in saved}
