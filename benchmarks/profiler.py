@@ -1,7 +1,7 @@
 """
 Where the time goes: wall seconds per 1k env steps split into env stepping, SAC updates, the state-entropy reward,
-reward learning, relabeling, diffusion training and generation, for SAC, PEBBLE and PRIDE; each algorithm in
-its own process so that its peak memory (max RSS) is its own.
+reward learning, REED's consistency passes (where on), relabeling, diffusion training and generation, for SAC,
+PEBBLE and PRIDE; each algorithm in its own process so that its peak memory (max RSS) is its own.
 
     python benchmarks/profiler.py --env sb3_pride/walker-walk-v0 --timesteps 12000 --out benchmarks/results/profile.json
 
@@ -24,7 +24,16 @@ from collections.abc import Callable
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
-BUCKETS = ("env", "sac_update", "state_entropy", "reward_learning", "relabel", "diffusion_training", "generation")
+BUCKETS = (
+    "env",
+    "sac_update",
+    "state_entropy",
+    "reward_learning",
+    "consistency",
+    "relabel",
+    "diffusion_training",
+    "generation",
+)
 OVERRIDES = dict(unsupervised_steps=2000, max_feedback=200)
 
 
@@ -69,6 +78,8 @@ def instrument(model: Any, timer: Timer) -> None:
         return
     model.state_entropy = TimedCallable(model.state_entropy, timer, "state_entropy")
     model.reward_model.train_epochs = timer.wrap(model.reward_model.train_epochs, "reward_learning")
+    if getattr(model, "consistency_model", None) is not None:  # REED's passes, before each reward update
+        model.consistency_model.train_epochs = timer.wrap(model.consistency_model.train_epochs, "consistency")
     model.relabel = timer.wrap(model.relabel, "relabel")
     if hasattr(model, "generator"):  # PRIDE: the generator's two costly steps (sampling includes the filter's draws)
         model.generator.fit = timer.wrap(model.generator.fit, "diffusion_training")

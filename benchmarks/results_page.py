@@ -289,14 +289,15 @@ def render_docs(data: dict[str, Any]) -> str:
 
 def render_summary(data: dict[str, Any]) -> str:
     """The README's summary table: the rows of the grid files marked ``summary: true``."""
-    lines = [f"| task | configuration | queries | seeds | return (last {plot.LAST_EVALUATIONS} evaluations) | "
+    lines = [f"| task | configuration | queries | u | seeds | return (last {plot.LAST_EVALUATIONS} evaluations) | "
              "P(better than PEBBLE) [95% CI] |",
-             "|---|---|---|---|---|---|"]  # fmt: skip
+             "|---|---|---|---|---|---|---|"]  # fmt: skip
     for task, rows in data["tasks"].items():
         for row in rows:
             if row["summary"]:
                 feedback = "—" if row["feedback"] is None else str(row["feedback"])
-                lines.append(f"| {task} | {row['name']} | {feedback} | {len(row['seeds'])} | {final_text(row)} | "
+                ratio = "—" if row["ratio"] is None else str(row["ratio"])
+                lines.append(f"| {task} | {row['name']} | {feedback} | {ratio} | {len(row['seeds'])} | {final_text(row)} | "
                              f"{p_text(row['against_pebble'])} |")  # fmt: skip
     budgets: dict[int, list[str]] = {}
     for task, rows in data["tasks"].items():
@@ -305,7 +306,7 @@ def render_summary(data: dict[str, Any]) -> str:
     basis = ", ".join(f"{feedback} queries on {' and '.join(tasks)}" for feedback, tasks in budgets.items())
     return (
         "\n".join(lines)
-        + f"\n\nTrue return, mean of each run's last {plot.LAST_EVALUATIONS} evaluations, mean ± std over seeds; P: probability of improvement over PEBBLE at the task's full "
+        + f"\n\nTrue return, mean of each run's last {plot.LAST_EVALUATIONS} evaluations, mean ± std over seeds; u: PRIDE's synthetic share; P: probability of improvement over PEBBLE at the task's full "
         f"budget ({basis}), rliable, 95% bootstrap interval. Every row, its runs and the command that re-creates them: "
         "`benchmarks/results/benchmark.md`.\n"
     )
