@@ -9,9 +9,11 @@ Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identica
 
 PRIDE's settings are those of ``hyperparams/cpu/pride.yml`` (its CPU defaults), with a shorter pre-training and
 feedback budget for the shorter run; ``--as-tier`` runs the tier's own run instead (50k steps on walker-walk, the
-YAML unchanged), and ``--algos pebble`` and ``--algos pride`` can then run side by side, one per core. The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine noise hits them alike; the report
-gives each one's median time, its ratio to SAC's and to PEBBLE's, and where the extra time goes: feedback
-sessions (reward learning, relabeling, critic reset), diffusion training, generation (samples per second).
+YAML unchanged), and ``--algos pebble`` and ``--algos pride`` (or ``--algos --variant LABEL``, a variant alone) can
+then run side by side, one per core. The algorithms run in turns (SAC, PEBBLE, PRIDE, SAC, ...) so that machine
+noise hits them alike; the report gives each one's median time, its ratio to SAC's and to PEBBLE's, and where the
+extra time goes: feedback sessions (reward learning, relabeling, critic reset), diffusion training, generation
+(samples per second).
 """
 
 import argparse
@@ -124,7 +126,9 @@ def main() -> None:
     parser.add_argument("--env", default="sb3_pride/walker-walk-v0")
     parser.add_argument("--timesteps", type=int, default=None, help="15000, or with --as-tier the tier's n_timesteps")
     parser.add_argument("--repeats", type=int, default=2)
-    parser.add_argument("--algos", nargs="+", default=["sac", "pebble", "pride"])
+    parser.add_argument(
+        "--algos", nargs="*", default=["sac", "pebble", "pride"], help="none (--algos alone): the variants only"
+    )
     parser.add_argument(
         "--as-tier",
         action="store_true",
@@ -144,6 +148,8 @@ def main() -> None:
     args = parser.parse_args()
     variants = {name: (algo, overrides) for name, algo, overrides in map(parse_variant, args.variant)}
     algos = args.algos + list(variants)
+    if not algos:
+        raise SystemExit("nothing to time: give --algos or a --variant")
     if args.timesteps is None:
         args.timesteps = tier_timesteps(args.env) if args.as_tier else 15_000
 
