@@ -241,8 +241,7 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
                   "area under curve | P(> PEBBLE) [95% CI] | reproduce |",
                   "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for row in rows:
-            feedback = "—" if row["feedback"] is None else str(row["feedback"])
-            ratio = "—" if row["ratio"] is None else str(row["ratio"])
+            feedback, ratio = cell(row["feedback"]), cell(row["ratio"])
             area = "" if row["area_under_curve"] is None else number(row["area_under_curve"])
             lines.append(f"| {row['name']} (`{row['configuration']}`) | {feedback} | {ratio} | {len(row['seeds'])} | "
                          f"{final_text(row)} | {final_text(row, 'final_return')} | {area} | {p_text(row['against_pebble'])} | "
@@ -287,6 +286,11 @@ def render_docs(data: dict[str, Any]) -> str:
     )
 
 
+def cell(value: Any) -> str:
+    """A table cell: the value, or a dash where a row has none (PEBBLE's u, SAC's budget)."""
+    return "—" if value is None else str(value)
+
+
 def render_summary(data: dict[str, Any]) -> str:
     """The README's summary table: the rows of the grid files marked ``summary: true``."""
     lines = [f"| task | configuration | queries | u | seeds | return (last {plot.LAST_EVALUATIONS} evaluations) | "
@@ -295,8 +299,7 @@ def render_summary(data: dict[str, Any]) -> str:
     for task, rows in data["tasks"].items():
         for row in rows:
             if row["summary"]:
-                feedback = "—" if row["feedback"] is None else str(row["feedback"])
-                ratio = "—" if row["ratio"] is None else str(row["ratio"])
+                feedback, ratio = cell(row["feedback"]), cell(row["ratio"])
                 lines.append(f"| {task} | {row['name']} | {feedback} | {ratio} | {len(row['seeds'])} | {final_text(row)} | "
                              f"{p_text(row['against_pebble'])} |")  # fmt: skip
     budgets: dict[int, list[str]] = {}
