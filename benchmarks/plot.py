@@ -6,8 +6,9 @@ The paper's figures re-drawn from ``benchmarks/run.py`` results, plus an rliable
 ``--runs`` takes several folders and pools their runs (the same configuration's seeds from each); ``--only`` keeps
 the configurations named (labels as in ``summary.md``), e.g. a default against PEBBLE in a figure of its own.
 
-For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 and of SAC
-(the paper's Figures 2–4: equal feedback, and PRIDE at reduced feedback), the synthetic-ratio sweep of PRIDE
+For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 (or at the one u
+a PRIDE variant ran at, such as a task's CPU setting) and of SAC (the paper's Figures 2–4: equal feedback, and PRIDE
+at reduced feedback), the synthetic-ratio sweep of PRIDE
 (Figure 5) and, for Meta-World, success rates (Figure 3). The aggregate is the interquartile mean (IQM) of the
 final evaluation with 95% stratified-bootstrap intervals (rliable), scores normalized per task by the best
 configuration's mean, over the seeds every task of a configuration has (configurations with one seed are left
@@ -342,12 +343,15 @@ def main() -> None:
         return
     args.out.mkdir(parents=True, exist_ok=True)
     for task in sorted({task for task, _ in groups}):
-        plot_curves(groups, task, lambda s: s["algo"] != "pride" or s["ratio"] == 0.5, "true_return", "true return",
-                    f"{task} (dashed: PRIDE with less feedback)", args.out / f"curves_{task}.png")  # fmt: skip
-        ratios: dict[str, set[float]] = {}  # Fig. 5: the u of each PRIDE variant (tag) run at more than one u
+        ratios: dict[str, set[float]] = {}  # the u each PRIDE variant (tag) ran at
         for (t, _), runs in groups.items():
             if t == task and runs[0]["settings"]["algo"] == "pride":
                 ratios.setdefault(variant(runs[0]["settings"]), set()).add(runs[0]["settings"]["ratio"])
+        # PRIDE at u = 0.5, or at the one u a variant ran at (a task's CPU setting)
+        plot_curves(groups, task, lambda s, us=ratios: s["algo"] != "pride" or s["ratio"] == 0.5 or us[variant(s)] == {s["ratio"]},
+                    "true_return", "true return", f"{task} (dashed: PRIDE with less feedback)",
+                    args.out / f"curves_{task}.png")  # fmt: skip
+        # Fig. 5: each PRIDE variant run at more than one u
         for tag in (tag for tag, us in ratios.items() if len(us) > 1):
             plot_curves(groups, task, lambda s, tag=tag: s["algo"] == "pride" and variant(s) == tag,
                         "true_return", "true return", f"{task}: PRIDE's synthetic ratio u" + (f" ({tag})" if tag else ""),

@@ -95,14 +95,37 @@ def plot():
     return load_script("plot")
 
 
-def write_run(folder: Path, algo: str, seed: int, final_return: float) -> None:
+def write_run(folder: Path, algo: str, seed: int, final_return: float, ratio: float = 0.5) -> None:
     """A finished run folder as run.py leaves it (the files plot.py reads)."""
-    run = folder / f"{algo}_walker-walk_s{seed}_fb400"
+    run = folder / f"{algo}_walker-walk_s{seed}_fb400{f'_u{ratio}' if algo == 'pride' else ''}"
     run.mkdir(parents=True)
-    settings = {"algo": algo, "task": "walker-walk", "seed": seed, "feedback": 400, "ratio": 0.5, "tag": ""}
+    settings = {"algo": algo, "task": "walker-walk", "seed": seed, "feedback": 400, "ratio": ratio, "tag": ""}
     (run / "settings.json").write_text(json.dumps(settings))
     (run / "curve.csv").write_text(f"step,true_return,success\n5000,10.0,\n10000,{final_return},\n")
     (run / "result.json").write_text(json.dumps({"final_return": final_return}))
+
+
+@pytest.mark.parametrize("ratios", [(0.25,), (0.5, 0.25)])
+def test_the_curves_show_pride_at_u_half_or_at_the_one_u_it_ran_at(plot, tmp_path, monkeypatch, ratios):
+    """A task whose PRIDE runs all have another u (cheetah-run's CPU setting, 0.25) still gets PRIDE's curve beside
+    PEBBLE's; where PRIDE ran at several u, the curves show u = 0.5 and the others have the ratio figure."""
+    for ratio in ratios:
+        write_run(tmp_path / "runs", "pride", 0, 300.0, ratio)
+    write_run(tmp_path / "runs", "pebble", 0, 250.0)
+    shown = {}
+
+    def record(groups, task, keep, column, ylabel, title, path):
+        shown[path.name] = sorted(name for (_, name), runs in groups.items() if keep(runs[0]["settings"]))
+        return True
+
+    monkeypatch.setattr(plot, "plot_curves", record)
+    monkeypatch.setattr(plot, "summary", lambda groups: "")
+    monkeypatch.setattr(plot, "aggregate", lambda groups, out: {})
+    monkeypatch.setattr(sys, "argv", ["plot.py", "--runs", str(tmp_path / "runs"), "--out", str(tmp_path / "figures")])
+    plot.main()
+    pride = f"PRIDE (400 queries, u={0.5 if 0.5 in ratios else 0.25})"
+    assert shown["curves_walker-walk.png"] == ["PEBBLE (400 queries)", pride]
+    assert ("ratio_walker-walk.png" in shown) == (len(ratios) > 1)
 
 
 @pytest.mark.slow
