@@ -10,8 +10,8 @@ For every task: learning curves (mean ± std over seeds, shaded) of every config
 a PRIDE variant ran at, such as a task's CPU setting) and of SAC (the paper's Figures 2–4: equal feedback, and PRIDE
 at reduced feedback), the synthetic-ratio sweep of PRIDE (Figure 5) and, for Meta-World, success rates (Figure 3).
 The aggregate is the interquartile mean (IQM) of the final evaluation with 95% stratified-bootstrap intervals
-(rliable), scores normalized per task by the best configuration's mean, over the seeds every task of a configuration has (configurations with one seed are left
-out). The paper's pairwise claims get rliable's probability of improvement P(X > Y) (Mann-Whitney over seeds)
+(rliable), scores normalized per task by the best configuration's mean, over the seeds every task of a
+configuration has (configurations with one seed are left out). The paper's pairwise claims get rliable's probability of improvement P(X > Y) (Mann-Whitney over seeds)
 with a 95% bootstrap interval: every PRIDE configuration of a task against PEBBLE at that task's largest budget,
 and PRIDE at u = 0.5 against the other synthetic ratios.
 ``summary.md`` lists every configuration with its number of seeds, those comparisons, and diagnostics read from
