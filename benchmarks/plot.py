@@ -6,14 +6,14 @@ The paper's figures re-drawn from ``benchmarks/run.py`` results, plus an rliable
 ``--runs`` takes several folders and pools their runs (the same configuration's seeds from each); ``--only`` keeps
 the configurations named (labels as in ``summary.md``), e.g. a default against PEBBLE in a figure of its own.
 
-For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 (or at the one u
-a PRIDE variant ran at, such as a task's CPU setting) and of SAC (the paper's Figures 2–4: equal feedback, and PRIDE
+For every task: learning curves (mean ± std over seeds, shaded) of every configuration at u = 0.5 (or at the one u a
+PRIDE variant ran at, such as a task's CPU setting) and of SAC (the paper's Figures 2–4: equal feedback, and PRIDE
 at reduced feedback), the synthetic-ratio sweep of PRIDE (Figure 5) and, for Meta-World, success rates (Figure 3).
 The aggregate is the interquartile mean (IQM) of the final evaluation with 95% stratified-bootstrap intervals
-(rliable), scores normalized per task by the best configuration's mean, over the seeds every task of a
-configuration has (configurations with one seed are left out). The paper's pairwise claims get rliable's probability of improvement P(X > Y) (Mann-Whitney over seeds)
-with a 95% bootstrap interval: every PRIDE configuration of a task against PEBBLE at that task's largest budget,
-and PRIDE at u = 0.5 against the other synthetic ratios.
+(rliable), scores normalized per task by the best configuration's mean, over the seeds every task of a configuration
+has (configurations with one seed are left out). The paper's pairwise claims get rliable's probability of
+improvement P(X > Y) (Mann-Whitney over seeds) with a 95% bootstrap interval: every PRIDE configuration of a task
+against PEBBLE at that task's largest budget, and PRIDE at u = 0.5 against the other synthetic ratios.
 ``summary.md`` lists every configuration with its number of seeds, those comparisons, and diagnostics read from
 each run's SB3 log (``progress.csv``): the reward model's correlation with the true reward, the critic loss and
 −(actor loss) ≈ Q at the end of training.
