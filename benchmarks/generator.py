@@ -44,8 +44,9 @@ def collect(task: str, n: int, seed: int) -> tuple[np.ndarray, int]:
     env = gym.make(env_id(task))
     rng = np.random.default_rng(seed)
     obs, _ = env.reset(seed=seed)
+    assert env.action_space.shape is not None  # a Box
     action = np.zeros(env.action_space.shape, dtype=np.float32)
-    rows = []
+    rows: list[np.ndarray] = []
     while len(rows) < n:
         action = np.clip(0.9 * action + 0.45 * rng.normal(size=action.shape), -1, 1).astype(np.float32)
         next_obs, _, terminated, truncated, _ = env.step(action)

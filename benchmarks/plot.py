@@ -23,6 +23,7 @@ import argparse
 import json
 from collections import defaultdict
 from pathlib import Path
+from typing import TypedDict
 
 import matplotlib
 
@@ -31,6 +32,14 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 COLORS = {"pride": "tab:red", "pebble": "tab:blue", "sac": "tab:gray"}
+
+
+class Aggregate(TypedDict):
+    """A configuration's entry in the aggregate: the IQM, its 95% interval and the number of runs."""
+
+    iqm: float
+    ci95: list[float]
+    runs: int
 
 
 def variant(settings: dict) -> str:
@@ -56,6 +65,7 @@ def load_run(folder: Path, progress: bool = True) -> dict:
     columns = None
     if progress and (folder / "progress.csv").exists():
         table = np.genfromtxt(folder / "progress.csv", delimiter=",", names=True, deletechars="", dtype=float)
+        assert table.dtype.names is not None  # names=True: the header's columns
         columns = {key: np.atleast_1d(table[key]) for key in table.dtype.names}
     return {"settings": settings, "curve": curve, "progress": columns}
 
@@ -162,8 +172,14 @@ def aggregate(groups, out: Path) -> dict:
     if not scores:
         return {}
     point, intervals = bootstrap(scores, lambda x: np.array([metrics.aggregate_iqm(x)]))
-    result = {name: {"iqm": float(point[name][0]), "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
-                     "runs": len(scores[name])} for name in scores}  # fmt: skip
+    result: dict[str, Aggregate] = {
+        name: {
+            "iqm": float(point[name][0]),
+            "ci95": [float(intervals[name][0, 0]), float(intervals[name][1, 0])],
+            "runs": len(scores[name]),
+        }
+        for name in scores
+    }
     names = sorted(result, key=lambda name: result[name]["iqm"])
     fig, ax = plt.subplots(figsize=(6, 0.5 + 0.45 * len(names)))
     for y, name in enumerate(names):

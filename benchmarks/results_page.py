@@ -25,6 +25,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import grid
@@ -115,6 +117,17 @@ def task_order(task: str) -> tuple[int, str]:
     return (TASK_ORDER.index(task), "") if task in TASK_ORDER else (len(TASK_ORDER), task)
 
 
+def spread(values: np.ndarray | None) -> dict[str, Any] | None:
+    """Mean, std and per-seed values of a row's returns (``None`` for a row without runs), rounded for the page."""
+    if values is None:
+        return None
+    return {
+        "mean": round(float(values.mean()), 4),
+        "std": round(float(values.std()), 4),
+        "per_seed": [round(float(value), 3) for value in values],
+    }
+
+
 def label_of(row: dict) -> str:
     """A row's short label in comparisons: the configuration, budget and u."""
     text = f"{row['configuration']}, {row['feedback']} queries" if row["feedback"] is not None else row["configuration"]
@@ -124,7 +137,7 @@ def label_of(row: dict) -> str:
 def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str, Any]:
     """The data of the page: every row's statistics and every comparison, from the run folders."""
     rows, extra = collect(grid_files, runs_folder)
-    finals = {}  # the primary return of each run, which the comparisons use
+    finals: dict[tuple, np.ndarray | None] = {}  # the primary return of each run, which the comparisons use
     for key, row in rows.items():
         found = runs_of(row)
         finals[key] = plot.primary_returns(found) if found else None
@@ -133,24 +146,21 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         has_success = found and not all(value != value for value in successes)  # NaN: no success column
         row["seeds"] = [r["settings"]["seed"] for r in found]
         row["runs"] = [run.run_name(spec) for spec in sorted(row["specs"], key=lambda spec: spec["seed"])]
-        row["primary_return"] = None if not found else {
-            "mean": round(float(finals[key].mean()), 4), "std": round(float(finals[key].std()), 4),
-            "per_seed": [round(float(value), 3) for value in finals[key]],
-        }  # fmt: skip
-        row["final_return"] = None if not found else {
-            "mean": round(float(last.mean()), 4), "std": round(float(last.std()), 4),
-            "per_seed": [round(float(value), 3) for value in last],
-        }  # fmt: skip
+        row["primary_return"] = spread(finals[key])
+        row["final_return"] = spread(last)
         row["area_under_curve"] = None if not found else round(float(sum(r["curve"]["true_return"].mean() for r in found) / len(found)), 4)  # fmt: skip
         row["final_success"] = round(float(sum(successes) / len(successes)), 4) if has_success else None
     pairs, names = {}, {}
     for key, row in rows.items():
         reference = reference_key(rows, row["task"])
-        if reference is None or key == reference or finals[key] is None or finals[reference] is None:
+        if reference is None or key == reference:
             continue
-        if min(len(finals[key]), len(finals[reference])) >= 2:
+        final, final_reference = finals[key], finals[reference]
+        if final is None or final_reference is None:
+            continue
+        if min(len(final), len(final_reference)) >= 2:
             pair = f"{row['task']}: {label_of(row)} > {label_of(rows[reference])}"
-            pairs[pair], names[pair] = [finals[key][:, None], finals[reference][:, None]], (key, reference, None)
+            pairs[pair], names[pair] = [final[:, None], final_reference[:, None]], (key, reference, None)
     for comparison in extra:
         matched = False
         for key_x, x in rows.items():
@@ -164,20 +174,17 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
                 ):
                     continue
                 matched = True
-                if (
-                    finals[key_x] is not None
-                    and finals[key_y] is not None
-                    and min(len(finals[key_x]), len(finals[key_y])) >= 2
-                ):
+                final_x, final_y = finals[key_x], finals[key_y]
+                if final_x is not None and final_y is not None and min(len(final_x), len(final_y)) >= 2:
                     pair = f"{x['task']}: {label_of(x)} > {label_of(y)}"
                     if pair in pairs:
                         continue
-                    pairs[pair], names[pair] = [finals[key_x][:, None], finals[key_y][:, None]], (key_x, key_y, comparison["grid"])  # fmt: skip
+                    pairs[pair], names[pair] = [final_x[:, None], final_y[:, None]], (key_x, key_y, comparison["grid"])
         if not matched:
             raise SystemExit(f"{comparison['grid']}: comparison {comparison['x']} > {comparison['y']}: no two rows of "
                              "the same task, budget and u")  # fmt: skip
     probabilities = plot.probabilities_of_improvement(pairs)
-    comparisons = []
+    comparisons: list[dict[str, Any]] = []
     for pair, value in probabilities.items():
         key_x, key_y, from_grid = names[pair]
         entry = {"task": key_x[0], "x": label_of(rows[key_x]), "y": label_of(rows[key_y]), "p": round(value["p"], 4),

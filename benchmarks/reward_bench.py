@@ -239,7 +239,7 @@ def screen_one(
     from sb3_pride.common.queries import sample_segment_pairs
     from sb3_pride.common.queries import pair_features, select_queries
     from sb3_pride.common.reward_model import PreferenceDataset, PseudoLabels, RewardEnsemble, RobustLabels
-    from sb3_pride.common.teachers import make_teacher
+    from sb3_pride.common.teachers import InteractiveTeacher, make_teacher
 
     config = dict(config)
     flip = config.pop("flip_labels", False)
@@ -270,6 +270,7 @@ def screen_one(
             transitions = with_synthetic(transitions, synthetic_share, seed)
 
     teacher = make_teacher(teacher_name, seed=seed)
+    assert not isinstance(teacher, InteractiveTeacher), "the bench labels pairs with a scripted teacher"
     pair_rng, train_rng = np.random.default_rng([seed, 2]), np.random.default_rng([seed, 3])
     # the labelled pairs, in feedback sessions of queries_per_session: a budget's pairs are the first ones
     chunks = []
@@ -307,7 +308,9 @@ def screen_one(
         unlabeled = None
         if pseudo is not None:
             n = min(pseudo.unlabeled_per_label * len(dataset), pseudo.max_unlabeled)
-            unlabeled = sample_segment_pairs(train_buffer, n, k, len(train), unlabeled_rng).inputs
+            drawn = sample_segment_pairs(train_buffer, n, k, len(train), unlabeled_rng)
+            assert drawn is not None
+            unlabeled = drawn.inputs
         _, accuracy, epochs = model.train_epochs(
             dataset, reward_kwargs["reward_epochs"], reward_kwargs["reward_batch_size"], rng=train_rng,
             robust_labels=selections.get(id(model)), unlabeled=unlabeled, pseudo_labels=pseudo, **config,
@@ -333,6 +336,7 @@ def screen_one(
         for session, (inputs, labels) in enumerate(chunks):
             if selection != "uniform" and session > 0:  # PEBBLE's: among 10x candidates, with the model so far
                 candidates = sample_segment_pairs(train_buffer, 10 * per_session, k, len(train), pair_rng)
+                assert candidates is not None
                 n_obs = candidates.observations.shape[-1]
                 chosen = select_queries(
                     model.member_segment_returns(candidates.inputs), per_session, selection,
@@ -563,7 +567,7 @@ def merge(paths: list[Path], out: Path) -> dict[str, Any]:
         for key in ("budgets", "sessions", "reward_kwargs", "n_test_pairs", "data"):
             if part[key] != first[key]:
                 raise SystemExit(f"--merge: {path} differs from {paths[0]} in {key!r}")
-    runs: dict[str, dict[str, Any]] = {}
+    runs: dict[str, dict[int, dict[int, dict[str, float]]]] = {}
     configs: dict[str, Any] = {}
     for part in parts:
         configs.update(part["configs"])

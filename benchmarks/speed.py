@@ -31,7 +31,7 @@ from run import load_variants, merge, parse_overrides, provenance
 from stable_baselines3 import SAC
 
 import sb3_pride
-from sb3_pride.common.teachers import PacedTeacher, make_teacher
+from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
 from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
 from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
@@ -111,7 +111,9 @@ def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False
     pace = overrides.pop("seconds_per_answer", None)
     kwargs = merge(tier_kwargs(algo, env_id, as_tier), overrides)
     if pace:  # the teacher answers at a person's pace: PacedTeacher
-        kwargs["teacher"] = PacedTeacher(make_teacher(kwargs["teacher"], seed=seed), pace)
+        teacher = make_teacher(kwargs["teacher"], seed=seed)
+        assert not isinstance(teacher, InteractiveTeacher), "seconds_per_answer paces a scripted teacher"
+        kwargs["teacher"] = PacedTeacher(teacher, pace)
     model = cls("MlpPolicy", env_id, seed=seed, **kwargs)
     if algo != "sac":
         timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
