@@ -270,7 +270,8 @@ def screen_one(
             transitions = with_synthetic(transitions, synthetic_share, seed)
 
     teacher = make_teacher(teacher_name, seed=seed)
-    assert not isinstance(teacher, InteractiveTeacher), "the bench labels pairs with a scripted teacher"
+    if isinstance(teacher, InteractiveTeacher):
+        raise SystemExit(f"teacher: the bench labels pairs with a scripted teacher, got the interactive {teacher!r}")
     pair_rng, train_rng = np.random.default_rng([seed, 2]), np.random.default_rng([seed, 3])
     # the labelled pairs, in feedback sessions of queries_per_session: a budget's pairs are the first ones
     chunks = []

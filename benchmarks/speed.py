@@ -112,7 +112,8 @@ def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False
     kwargs = merge(tier_kwargs(algo, env_id, as_tier), overrides)
     if pace:  # the teacher answers at a person's pace: PacedTeacher
         teacher = make_teacher(kwargs["teacher"], seed=seed)
-        assert not isinstance(teacher, InteractiveTeacher), "seconds_per_answer paces a scripted teacher"
+        if isinstance(teacher, InteractiveTeacher):
+            raise SystemExit(f"seconds_per_answer paces a scripted teacher, got the interactive {teacher!r}")
         kwargs["teacher"] = PacedTeacher(teacher, pace)
     model = cls("MlpPolicy", env_id, seed=seed, **kwargs)
     if algo != "sac":
