@@ -28,7 +28,7 @@ def consistency_loss(model: ConsistencyModel, s: np.ndarray, a: np.ndarray, s_ne
 
 def trained(s: np.ndarray, a: np.ndarray, s_next: np.ndarray) -> tuple[RewardEnsemble, ConsistencyModel]:
     th.manual_seed(0)
-    reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64))
+    reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64), device="cpu")
     model = ConsistencyModel(reward_model, OBS, DynamicsConsistency(epochs=8, batch_size=64, hidden_size=64))
     model.train_epochs(s, a, s_next, np.random.default_rng(0))
     return reward_model, model
@@ -55,7 +55,7 @@ def test_consistency_learns_the_dynamics_and_a_shuffled_one_does_not():
 def test_consistency_trains_the_encoder_never_the_reward_head_and_does_not_collapse():
     s, a, s_next = transitions(2000, seed=0)
     th.manual_seed(0)
-    reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64))
+    reward_model = RewardEnsemble(OBS, ACT, n_members=2, net_arch=(64, 64), device="cpu")
     head, first = reward_model.members.weights[-1].detach().clone(), reward_model.members.weights[0].detach().clone()
     model = ConsistencyModel(reward_model, OBS, DynamicsConsistency(epochs=2, batch_size=64))
     stepped = {id(p) for group in model.optimizer.param_groups for p in group["params"]}

@@ -52,13 +52,11 @@ def sampled_rewards(model, batch_size=64, seed=0):
 
 def expected_bonus(model, samples):
     """β_t times RUNE's σ: NumPy's std over the members' r̂ (divided by the number of members)."""
-    obs, actions = samples.observations.numpy(), samples.actions.numpy()
-    members = np.stack([
-        model.reward_model(th.as_tensor(np.concatenate([obs, actions], axis=-1)))[m].detach().numpy()
-        for m in range(model.ensemble_size)
-    ])  # fmt: skip
+    obs, actions = samples.observations.cpu().numpy(), samples.actions.cpu().numpy()
+    inputs = th.as_tensor(np.concatenate([obs, actions], axis=-1), device=model.device)
+    members = np.stack([model.reward_model(inputs)[m].detach().cpu().numpy() for m in range(model.ensemble_size)])
     settings = model.exploration_bonus if isinstance(model.exploration_bonus, dict) else {}
-    return th.as_tensor(ExplorationBonus(**settings).beta(model.num_timesteps) * members.std(axis=0))
+    return th.as_tensor(ExplorationBonus(**settings).beta(model.num_timesteps) * members.std(axis=0), device=model.device)
 
 
 def test_pebble_adds_the_ensembles_disagreement_after_pretraining(tiny_kwargs):

@@ -66,8 +66,8 @@ def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
     model.learn(100, reset_num_timesteps=False)
     assert not model.in_pretraining and model.replay_buffer.intrinsic_reward is None
     samples = model.replay_buffer.sample(32)
-    expected = model.reward_model.predict(samples.observations.numpy(), samples.actions.numpy())
-    np.testing.assert_allclose(samples.rewards.numpy().ravel(), expected, atol=1e-5)
+    expected = model.reward_model.predict(samples.observations.cpu().numpy(), samples.actions.cpu().numpy())
+    np.testing.assert_allclose(samples.rewards.cpu().numpy().ravel(), expected, atol=1e-5)
 
 
 @pytest.mark.slow
@@ -85,7 +85,7 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
         model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs, **tiny_kwargs)
     else:
         model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
-    model.state_entropy = lambda obs, all_obs, update_stats=True: th.full((len(obs), 1), 1000.0)
+    model.state_entropy = lambda obs, all_obs, update_stats=True: th.full((len(obs), 1), 1000.0, device=obs.device)
     model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too: count SAC's updates only
     sampled: list[tuple[int, float]] = []
     sample = model.replay_buffer.sample

@@ -130,10 +130,10 @@ def test_hybrid_replay_draws_its_share_from_the_most_recent_episodes():
     assert np.isin(buffer.observations[:, 0, 0], recent).sum() == len(rows)  # all of their rows
     buffer.recent_share, buffer.recent_rows = 0.5, rows
     np.random.seed(0)
-    share = np.isin(buffer.sample(2000).observations[:, 0].numpy(), recent).mean()
+    share = np.isin(buffer.sample(2000).observations[:, 0].cpu().numpy(), recent).mean()
     assert abs(share - (0.5 + 0.5 * len(rows) / 500)) < 0.05
     buffer.recent_share = 0.0  # off: SB3's uniform sampling
-    share = np.isin(buffer.sample(2000).observations[:, 0].numpy(), recent).mean()
+    share = np.isin(buffer.sample(2000).observations[:, 0].cpu().numpy(), recent).mean()
     assert abs(share - len(rows) / 500) < 0.05
 
 

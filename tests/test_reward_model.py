@@ -41,7 +41,7 @@ def test_ensemble_trained_on_200_oracle_labels_ranks_held_out_transitions():
     dataset = PreferenceDataset(k, obs_dim + act_dim)
     dataset.add(np.concatenate([obs, actions], axis=-1), labels)
 
-    model = RewardEnsemble(obs_dim, act_dim, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
+    model = RewardEnsemble(obs_dim, act_dim, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu")
     _loss, accuracy, epochs = model.train_epochs(dataset, max_epochs=300, batch_size=64, rng=rng)
     assert accuracy > 0.9 and epochs < 300  # early stop at 97% training accuracy
 
@@ -52,7 +52,7 @@ def test_ensemble_trained_on_200_oracle_labels_ranks_held_out_transitions():
 
 
 def test_untrained_members_disagree_and_predict_is_their_mean():
-    model = RewardEnsemble(3, 1, n_members=3, net_arch=(16,))
+    model = RewardEnsemble(3, 1, n_members=3, net_arch=(16,), device="cpu")
     obs, actions = np.random.randn(50, 3).astype(np.float32), np.random.randn(50, 1).astype(np.float32)
     per_member = model(th.as_tensor(np.concatenate([obs, actions], -1))).detach().numpy()[..., 0]
     assert per_member.std(axis=0).mean() > 1e-3
@@ -95,7 +95,7 @@ def test_temporal_crop_trains_and_member_returns_take_any_segment_length():
     labels = ScriptedTeacher.from_preset("oracle")(SegmentPairs(obs, actions, true_reward(obs, actions)))
     dataset = PreferenceDataset(k, obs_dim + act_dim)
     dataset.add(np.concatenate([obs, actions], axis=-1), labels)
-    model = RewardEnsemble(obs_dim, act_dim, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
+    model = RewardEnsemble(obs_dim, act_dim, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu")
     _loss, accuracy, _epochs = model.train_epochs(dataset, 100, batch_size=64, rng=rng, temporal_crop=(6, 8))
     assert accuracy > 0.8
     held_obs = rng.normal(size=(2000, obs_dim)).astype(np.float32)
@@ -118,7 +118,7 @@ def test_bad_temporal_crop_names_the_parameter(bad):
     dataset = PreferenceDataset(10, 3)
     dataset.add(np.zeros((4, 2, 10, 3)), np.ones(4))
     with pytest.raises(ValueError, match="temporal_crop"):
-        RewardEnsemble(2, 1, net_arch=(8,)).train_epochs(dataset, 1, temporal_crop=bad)
+        RewardEnsemble(2, 1, net_arch=(8,), device="cpu").train_epochs(dataset, 1, temporal_crop=bad)
     with pytest.raises(ValueError, match="temporal_crop"):
         PEBBLE("MlpPolicy", "Pendulum-v1", segment_length=10, temporal_crop=bad)
 
@@ -193,7 +193,7 @@ def test_robust_labels_leave_out_the_flipped_labels_and_learn_a_better_reward():
     scores = {}
     for robust in (False, True):
         th.manual_seed(0)
-        model = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
+        model = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu")
         selection = RobustLabels() if robust else None
         model.train_epochs(dataset, max_epochs=60, batch_size=64, target_accuracy=1.0, rng=np.random.default_rng(0),
                            robust_labels=selection)  # fmt: skip
@@ -206,7 +206,7 @@ def test_robust_labels_leave_out_the_flipped_labels_and_learn_a_better_reward():
 
     clean, _ = noisy_preferences(300, eps_mistake=0.0, seed=1)
     th.manual_seed(0)
-    model, selection = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3), RobustLabels()
+    model, selection = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu"), RobustLabels()
     model.train_epochs(clean, max_epochs=60, batch_size=64, target_accuracy=1.0, rng=np.random.default_rng(0),
                        robust_labels=selection)  # fmt: skip
     assert selection.trusted >= 0.85 * len(clean) and selection.flipped <= 0.02 * len(clean)
@@ -256,7 +256,7 @@ def test_pseudo_labels_teach_each_member_its_own_confident_answers_and_nothing_e
     unlabeled, _ = noisy_preferences(500, eps_mistake=0.0, seed=1)
     pairs = th.as_tensor(unlabeled.inputs)
     th.manual_seed(0)
-    model = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3)
+    model = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu")
     rng = np.random.default_rng(0)
     assert model.pseudo_label_loss(pairs, 64, PseudoLabels(threshold=0.99), rng, None).item() == 0.0
 

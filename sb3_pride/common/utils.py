@@ -1,10 +1,12 @@
 """Argument checks shared by the algorithms and models: errors name the parameter and what was expected."""
 
+import contextlib
 import dataclasses
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
+import torch as th
 
 
 def check_positive_ints(**params: Any) -> None:
@@ -66,3 +68,14 @@ def make_option(name: str, value: Any, settings_class: Callable[..., Any]) -> An
     if unknown:
         raise ValueError(f"{name}: unknown settings {unknown}; {settings_class.__name__} takes {sorted(known)}")
     return settings_class(**value)
+
+
+@contextlib.contextmanager
+def seeded_init(seed: int) -> Iterator[None]:
+    """
+    Layers built inside initialize from ``seed`` and leave every global torch RNG as it was. Layers are built on the
+    CPU, so only its default generator is seeded: ``th.manual_seed`` would reseed every CUDA generator too.
+    """
+    with th.random.fork_rng(devices=[]):
+        th.random.default_generator.manual_seed(seed)
+        yield
