@@ -27,6 +27,7 @@ def on(device: str, *modules: th.nn.Module) -> bool:
     return all(p.device.type == device for module in modules for p in module.parameters())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("options", [{}, OPTIONS], ids=["defaults", "every option"])
 @pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
 def test_learns_saves_and_loads_on_cuda(algo, options, tiny_kwargs, tmp_path):
