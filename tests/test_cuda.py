@@ -8,6 +8,7 @@ from test_contract import TINY_DIFFUSION
 
 from sb3_pride import PEBBLE, PRIDE
 from sb3_pride.common.diffusion import ElucidatedDiffusion
+from sb3_pride.common.fidelity import DynamicsEnsemble
 
 pytestmark = pytest.mark.skipif(not th.cuda.is_available(), reason="needs a CUDA device")
 
@@ -45,7 +46,18 @@ def test_learns_saves_and_loads_on_cuda(algo, options, tiny_kwargs, tmp_path):
         loaded.learn(200, reset_num_timesteps=False)
 
 
-def test_a_diffusion_model_leaves_the_global_cuda_rng_as_it_was():
-    state = th.cuda.get_rng_state()
+def test_the_generators_models_leave_the_global_rngs_as_they_were():
+    cpu_state, cuda_state = th.get_rng_state(), th.cuda.get_rng_state()
     ElucidatedDiffusion(3, width=16, n_blocks=1, seed=0, device="cuda")
-    assert th.equal(state, th.cuda.get_rng_state())
+    DynamicsEnsemble(3, 1, width=8, seed=0, device="cuda")
+    assert th.equal(cpu_state, th.get_rng_state()) and th.equal(cuda_state, th.cuda.get_rng_state())
+
+
+def test_a_seed_fixes_the_cuda_rng_of_a_new_model():
+    """Building PRIDE (whose argument checks build throwaway models without a seed) leaves CUDA's RNG as the seed set
+    it, so that a CUDA run repeats from its seed."""
+    cuda_states = []
+    for _ in range(2):
+        PRIDE("MlpPolicy", "Pendulum-v1", seed=0, device="cuda", **TINY_DIFFUSION)
+        cuda_states.append(th.cuda.get_rng_state())
+    assert th.equal(*cuda_states)

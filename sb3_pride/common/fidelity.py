@@ -78,7 +78,7 @@ class DynamicsEnsemble(nn.Module):
         self.device_ = get_device(device)
         self.rng = np.random.default_rng(seed)
         # the members are the reward model's batched ensemble MLP with a linear output, initialized from the
-        # model's own seed (the global torch RNG is left as it was)
+        # model's own seed (the global torch RNGs are left as they were)
         with seeded_init(int(self.rng.integers(2**62))):
             self.members = EnsembleMLP(
                 n_members,

@@ -1,4 +1,7 @@
-"""Argument checks shared by the algorithms and models: errors name the parameter and what was expected."""
+"""
+Argument checks shared by the algorithms and models (errors name the parameter and what was expected), and the
+seeded initialization of their layers.
+"""
 
 import contextlib
 import dataclasses

@@ -525,10 +525,14 @@ class PEBBLE(SAC):
         generators (NumPy's and torch's global states are restored), so logging it changes no training run.
         """
         numpy_state = np.random.get_state()  # SB3's sample() and _get_samples draw from NumPy's global RNG
-        # manual_seed reseeds every CUDA generator too: fork (and restore) the one this model draws from
-        devices = [self.device] if self.device.type == "cuda" else []
-        with th.random.fork_rng(devices=devices):
-            th.manual_seed(int(self._diagnostic_rng.integers(2**62)))
+        # seed (and afterwards restore) only the generators this model draws from: the CPU's, and its own CUDA device's
+        on_cuda = self.device.type == "cuda"
+        with th.random.fork_rng(devices=[self.device] if on_cuda else []):
+            seed = int(self._diagnostic_rng.integers(2**62))
+            th.random.default_generator.manual_seed(seed)
+            if on_cuda:
+                with th.cuda.device(self.device):
+                    th.cuda.manual_seed(seed)
             np.random.seed(int(self._diagnostic_rng.integers(2**32)))
             if real_only:
                 rows = self._diagnostic_rng.integers(0, self.real_buffer.size(), size=batch_size)
