@@ -15,7 +15,7 @@ import torch as th
 from stable_baselines3.common.utils import get_device
 from torch import nn
 
-from sb3_pride.common.utils import check_choice, check_positive_ints, seeded_init
+from sb3_pride.common.utils import check_choice, check_positive_ints, seeded
 
 
 class ResidualBlock(nn.Module):
@@ -183,7 +183,7 @@ class ElucidatedDiffusion(nn.Module):
     def _new_denoiser(self) -> ResidualMLPDenoiser:
         # initialized from the model's own generator, leaving the global torch RNGs as they were
         seed = int(th.randint(0, 2**62, (1,), generator=self.generator, device=self.generator.device))
-        with seeded_init(seed):
+        with seeded(seed):
             return ResidualMLPDenoiser(self.dim, **self.architecture).to(self.device_)
 
     # EDM preconditioning -------------------------------------------------------------------------------------

@@ -14,7 +14,7 @@ from torch import nn
 
 from sb3_pride.common.entropy import knn_distances
 from sb3_pride.common.reward_model import EnsembleMLP
-from sb3_pride.common.utils import check_positive_ints, seeded_init
+from sb3_pride.common.utils import check_positive_ints, seeded
 
 
 class DynamicsEnsemble(nn.Module):
@@ -79,7 +79,7 @@ class DynamicsEnsemble(nn.Module):
         self.rng = np.random.default_rng(seed)
         # the members are the reward model's batched ensemble MLP with a linear output, initialized from the
         # model's own seed (the global torch RNGs are left as they were)
-        with seeded_init(int(self.rng.integers(2**62))):
+        with seeded(int(self.rng.integers(2**62))):
             self.members = EnsembleMLP(
                 n_members,
                 obs_dim + action_dim,

@@ -1,6 +1,6 @@
 """
 Argument checks shared by the algorithms and models (errors name the parameter and what was expected), and the
-seeded initialization of their layers.
+seeding of their layers and draws.
 """
 
 import contextlib
@@ -74,11 +74,16 @@ def make_option(name: str, value: Any, settings_class: Callable[..., Any]) -> An
 
 
 @contextlib.contextmanager
-def seeded_init(seed: int) -> Iterator[None]:
+def seeded(seed: int, device: th.device | None = None) -> Iterator[None]:
     """
-    Layers built inside initialize from ``seed`` and leave every global torch RNG as it was. Layers are built on the
-    CPU, so only its default generator is seeded: ``th.manual_seed`` would reseed every CUDA generator too.
+    Inside, torch's global RNGs draw from ``seed``: the CPU's default generator (layers are built on the CPU), and
+    ``device``'s own generator when it is a CUDA device; afterwards every global RNG is as it was. Not
+    ``th.manual_seed``: it would reseed every CUDA generator, which the fork does not restore.
     """
-    with th.random.fork_rng(devices=[]):
+    on_cuda = device is not None and device.type == "cuda"
+    with th.random.fork_rng(devices=[device] if on_cuda else []):
         th.random.default_generator.manual_seed(seed)
+        if on_cuda:
+            with th.cuda.device(device):
+                th.cuda.manual_seed(seed)
         yield

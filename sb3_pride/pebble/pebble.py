@@ -46,7 +46,7 @@ from sb3_pride.common.reward_model import (
     check_temporal_crop,
 )
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
-from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real, make_option
+from sb3_pride.common.utils import check_choice, check_non_negative_ints, check_positive_ints, check_real, make_option, seeded
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 
@@ -525,14 +525,7 @@ class PEBBLE(SAC):
         generators (NumPy's and torch's global states are restored), so logging it changes no training run.
         """
         numpy_state = np.random.get_state()  # SB3's sample() and _get_samples draw from NumPy's global RNG
-        # seed (and afterwards restore) only the generators this model draws from: the CPU's, and its own CUDA device's
-        on_cuda = self.device.type == "cuda"
-        with th.random.fork_rng(devices=[self.device] if on_cuda else []):
-            seed = int(self._diagnostic_rng.integers(2**62))
-            th.random.default_generator.manual_seed(seed)
-            if on_cuda:
-                with th.cuda.device(self.device):
-                    th.cuda.manual_seed(seed)
+        with seeded(int(self._diagnostic_rng.integers(2**62)), self.device):
             np.random.seed(int(self._diagnostic_rng.integers(2**32)))
             if real_only:
                 rows = self._diagnostic_rng.integers(0, self.real_buffer.size(), size=batch_size)
