@@ -313,13 +313,18 @@ def render_summary(data: dict[str, Any]) -> str:
     for task, rows in data["tasks"].items():
         if any(row["summary"] for row in rows) and rows[0]["reference_feedback"]:
             budgets.setdefault(rows[0]["reference_feedback"], []).append(task)
-    basis = ", ".join(f"{feedback} queries on {' and '.join(tasks)}" for feedback, tasks in budgets.items())
+    basis = ", ".join(f"{feedback} queries on {enumerate_names(tasks)}" for feedback, tasks in budgets.items())
     return (
         "\n".join(lines)
         + f"\n\nTrue return, mean of each run's last {plot.LAST_EVALUATIONS} evaluations, mean ± std over seeds; u: PRIDE's synthetic share; P: probability of improvement over PEBBLE at the task's full "
         f"budget ({basis}), rliable, 95% bootstrap interval. Every row, its runs and the command that re-creates them: "
         "`benchmarks/results/benchmark.md`.\n"
     )
+
+
+def enumerate_names(names: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return " and ".join(names) if len(names) < 3 else f"{', '.join(names[:-1])} and {names[-1]}"
 
 
 def replace_block(text: str, block: str, where: str) -> str:
