@@ -444,6 +444,17 @@ def test_results_json_holds_every_run_of_the_grid_files(page):
         assert recorded[key]["command"] == f"python benchmarks/grid.py {row['grid']}"
 
 
+def test_each_task_opens_with_its_pebble_reference(page):
+    """Every configuration of a task is compared with plain PEBBLE at the task's largest budget; that row comes first
+    in the tables, whichever grid file sorts first."""
+    data = json.loads(page.RESULTS.read_text())
+    for task, rows in data["tasks"].items():
+        pebbles = [row for row in rows if row["configuration"] == "pebble"]
+        if pebbles:
+            assert rows[0]["configuration"] == "pebble", task
+            assert rows[0]["feedback"] == max(row["feedback"] for row in pebbles), task
+
+
 def test_the_readme_summary_needs_its_markers(page):
     with pytest.raises(SystemExit, match="needs one <!-- results:start --> line"):
         page.replace_block("# README\n\nno markers here\n", "| table |\n", "README.md")
