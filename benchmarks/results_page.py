@@ -196,9 +196,10 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
             command = " && ".join(f"python benchmarks/grid.py {path}" for path in grids)
             comparisons.append({**entry, "grid": from_grid, "command": command})
     tasks: dict[str, list[dict]] = {}
+    references = {task: reference_key(rows, task) for task, *_ in rows}
     # each task's PEBBLE reference first, then its rows in the order of the grid files
-    for _, row in sorted(rows.items(), key=lambda item: (task_order(item[0][0]), item[0] != reference_key(rows, item[0][0]))):
-        reference = reference_key(rows, row["task"])
+    for key, row in sorted(rows.items(), key=lambda item: (task_order(item[0][0]), item[0] != references[item[0][0]])):
+        reference = references[key[0]]
         row.setdefault("against_pebble", None)
         row["reference_feedback"] = rows[reference]["feedback"] if reference else None
         tasks.setdefault(row["task"], []).append({k: v for k, v in row.items() if k not in ("specs", "out")})
