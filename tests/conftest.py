@@ -19,9 +19,8 @@ TINY = dict(
     queries_per_session=20,
     segment_length=10,
     batch_size=64,
-    reward_net_arch=(32, 32),
-    reward_epochs=20,
-    critic_reset_updates=10,
+    reward_kwargs=dict(net_arch=(32, 32), epochs=20),
+    pretraining_kwargs=dict(critic_reset_updates=10),
     policy_kwargs=dict(net_arch=[32, 32]),
 )
 

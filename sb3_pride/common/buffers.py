@@ -1,6 +1,7 @@
 """Replay buffers: the true reward kept aside for the teacher, r̂ (or r_int) for the learner."""
 
 from collections.abc import Callable
+from typing import Protocol
 
 import numpy as np
 import torch as th
@@ -11,10 +12,26 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 #: r̂(observations, actions) -> rewards, numpy in and out, any leading batch shape
 RewardFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
-#: r_int(minibatch observations, all stored observations) -> (B, 1) rewards
-IntrinsicRewardFn = Callable[[th.Tensor, th.Tensor], th.Tensor]
-#: a bonus added to a sampled minibatch's rewards (RUNE's β_t · σ), of the minibatch: shape like its rewards
-RewardBonusFn = Callable[[ReplayBufferSamples], th.Tensor]
+
+
+class RewardSource(Protocol):
+    """
+    What a ``PreferenceReplayBuffer`` asks about rewards, one object (the algorithm's): the reward stored with a new
+    transition, the rewards of a sampled minibatch, and the rows a share of each minibatch is drawn from.
+    """
+
+    #: the share of each minibatch drawn from ``recent_rows`` (QPA's hybrid replay; 0: uniform, as SB3 samples)
+    recent_share: float
+    #: buffer rows of the most recent episodes, or None
+    recent_rows: np.ndarray | None
+
+    def new_rewards(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """The rewards stored with transitions being added, (n_envs,): r̂, or 0 before the first reward model."""
+        ...
+
+    def rewrite(self, samples: ReplayBufferSamples, buffer: "PreferenceReplayBuffer", env: VecNormalize | None) -> ReplayBufferSamples:
+        """A sampled minibatch with the rewards SAC learns from (e.g. r_int while pre-training, r̂ plus a bonus)."""
+        ...
 
 
 def relabel_rewards(buffer: ReplayBuffer, reward_fn: RewardFn, batch_size: int = 16_384) -> None:
@@ -34,27 +51,22 @@ def concatenate_samples(first: ReplayBufferSamples, second: ReplayBufferSamples)
     return ReplayBufferSamples(*fields)  # type: ignore[arg-type]
 
 
-def with_reward_bonus(samples: ReplayBufferSamples, bonus: RewardBonusFn | None) -> ReplayBufferSamples:
-    """``samples`` with ``bonus(samples)`` added to their rewards (unchanged when ``bonus`` is None)."""
-    return samples if bonus is None else samples._replace(rewards=samples.rewards + bonus(samples))
-
-
 class PreferenceReplayBuffer(ReplayBuffer):
     """
     SB3 ``ReplayBuffer`` for preference-based RL (PEBBLE).
 
     The environment's reward never reaches the learner: ``add()`` stores it in ``true_rewards``, which only the
     teacher and the diagnostics read, and stores r̂ of the current reward model in ``rewards`` (0 before the
-    first reward model exists). ``relabel()`` rewrites every stored reward with r̂ after a reward update.
-    While ``intrinsic_reward`` is set (unsupervised pre-training), sampled rewards are r_int instead.
-    Otherwise, while ``reward_bonus`` is set (RUNE's exploration bonus), it is added to each sampled minibatch's rewards.
+    first reward model exists). ``relabel()`` rewrites every stored reward with r̂ after a reward update. The
+    algorithm's ``reward_source`` says what new transitions store, what each sampled minibatch's rewards are (r_int
+    while pre-training, r̂ with RUNE's bonus) and which rows a share of it comes from (QPA's hybrid replay).
 
     Same constructor as SB3's ``ReplayBuffer``.
     """
 
     true_rewards: np.ndarray
-    #: RUNE's bonus, set by the algorithm (a class default: buffers pickled before it existed have none)
-    reward_bonus: RewardBonusFn | None = None
+    #: the algorithm's answers about rewards (None: every reward 0, minibatches uniform, as SB3's); never pickled
+    reward_source: RewardSource | None = None
 
     def __init__(
         self,
@@ -78,32 +90,23 @@ class PreferenceReplayBuffer(ReplayBuffer):
             handle_timeout_termination=handle_timeout_termination,
         )
         self.true_rewards = np.zeros((self.buffer_size, self.n_envs), dtype=np.float32)
-        self.reward_fn: RewardFn | None = None
-        self.intrinsic_reward: IntrinsicRewardFn | None = None
         #: True while a teacher needs pictures: ``add()`` then keeps ``info["render_state"]`` of every transition
         self.record_render_states = False
         #: (buffer_size, n_envs, state_dim) float64, the simulator state after each stored step (the frame of its
         #: next observation), allocated at the first recorded transition; None while nothing was recorded
         self.render_states: np.ndarray | None = None
-        #: QPA's hybrid replay: the share of each minibatch drawn from ``recent_rows`` (0: uniform, as SB3 samples)
-        self.recent_share = 0.0
-        #: buffer rows of the most recent episodes (set by the algorithm: ``PEBBLE(hybrid_replay=...)``)
-        self.recent_rows: np.ndarray | None = None
 
     def __getstate__(self) -> dict:
-        # The reward model and the entropy estimator belong to the algorithm, which re-attaches them
-        state = self.__dict__.copy()
-        state["reward_fn"] = None
-        state["intrinsic_reward"] = None
-        state["reward_bonus"] = None
-        return state
+        # the reward source belongs to the algorithm, which attaches it again
+        return {**self.__dict__, "reward_source": None}
 
     def add(self, obs, next_obs, action, reward, done, infos) -> None:  # type: ignore[override]
         self.true_rewards[self.pos] = np.asarray(reward, dtype=np.float32).reshape(self.n_envs)
         if self.record_render_states:
             self._record_render_states(infos)
-        if self.reward_fn is not None:
-            learned = self.reward_fn(np.asarray(obs).reshape(self.n_envs, -1), np.asarray(action).reshape(self.n_envs, -1))
+        if self.reward_source is not None:
+            observations, actions = np.asarray(obs).reshape(self.n_envs, -1), np.asarray(action).reshape(self.n_envs, -1)
+            learned = self.reward_source.new_rewards(observations, actions)
         else:
             learned = np.zeros(self.n_envs, dtype=np.float32)
         super().add(obs, next_obs, action, learned, done, infos)
@@ -139,25 +142,27 @@ class PreferenceReplayBuffer(ReplayBuffer):
             self.timeouts[last, running] = 1
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
-        rows = self.recent_rows
-        n_recent = round(self.recent_share * batch_size) if rows is not None and len(rows) else 0
+        samples = self.sample_transitions(batch_size, env)
+        return samples if self.reward_source is None else self.reward_source.rewrite(samples, self, env)
+
+    def sample_transitions(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
+        """A minibatch with the stored rewards (``sample()`` without the reward source's rewrite)."""
+        source = self.reward_source
+        rows = None if source is None else source.recent_rows
+        n_recent = round(source.recent_share * batch_size) if source is not None and rows is not None and len(rows) else 0
         if rows is None or n_recent == 0:
-            samples = super().sample(batch_size, env=env)
-        else:
-            # QPA's hybrid replay: a share of the minibatch from the most recent episodes, the rest uniform
-            recent = self._get_samples(rows[np.random.randint(0, len(rows), size=n_recent)], env=env)
-            if n_recent == batch_size:
-                samples = recent
-            else:
-                uniform = super().sample(batch_size - n_recent, env=env)
-                samples = concatenate_samples(recent, uniform)
-        if self.intrinsic_reward is None:
-            return with_reward_bonus(samples, self.reward_bonus)
-        # Unsupervised pre-training: the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
-        all_obs = self._normalize_obs(self.observations[: self.size()].reshape(-1, *self.obs_shape), env)
-        assert isinstance(all_obs, np.ndarray)  # flat Box observations (PEBBLE checks the env)
-        rewards = self.intrinsic_reward(samples.observations, self.to_torch(all_obs, copy=False))
-        return samples._replace(rewards=rewards.to(samples.rewards.dtype))
+            return super().sample(batch_size, env=env)
+        # QPA's hybrid replay: a share of the minibatch from the most recent episodes, the rest uniform
+        recent = self._get_samples(rows[np.random.randint(0, len(rows), size=n_recent)], env=env)
+        if n_recent == batch_size:
+            return recent
+        return concatenate_samples(recent, super().sample(batch_size - n_recent, env=env))
+
+    def stored_observations(self, env: VecNormalize | None = None) -> np.ndarray:
+        """Every stored observation, as the policy sees them (normalized under ``VecNormalize``): (n, *obs_shape)."""
+        observations = self._normalize_obs(self.observations[: self.size()].reshape(-1, *self.obs_shape), env)
+        assert isinstance(observations, np.ndarray)  # flat Box observations (PEBBLE checks the env)
+        return observations
 
     def transition_sample(self, n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``n`` stored transitions drawn uniformly: (observations, actions, true rewards), for diagnostics."""
@@ -258,15 +263,6 @@ class DualReplayBuffer(ReplayBuffer):
         self.handle_timeout_termination = handle_timeout_termination
         self.synthetic_ratio = synthetic_ratio
 
-    #: RUNE's bonus, added to each whole minibatch, synthetic rows too (the real part's own stays None); a class
-    #: default, as buffers pickled before it existed have none
-    reward_bonus: RewardBonusFn | None = None
-
-    def __getstate__(self) -> dict:
-        state = self.__dict__.copy()
-        state["reward_bonus"] = None  # the algorithm's, which sets it again
-        return state
-
     # what SB3 reads of a replay buffer, answered by the real part
     @property
     def pos(self) -> int:  # type: ignore[override]
@@ -324,13 +320,15 @@ class DualReplayBuffer(ReplayBuffer):
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         n_synthetic = self.n_synthetic(batch_size)
         if n_synthetic == 0:
-            samples = self.real.sample(batch_size, env=env)
+            samples = self.real.sample_transitions(batch_size, env=env)
         elif n_synthetic == batch_size:
             samples = self.synthetic.sample(n_synthetic, env=env)
         else:
             synthetic = self.synthetic.sample(n_synthetic, env=env)
-            samples = concatenate_samples(synthetic, self.real.sample(batch_size - n_synthetic, env=env))  # synthetic first
-        return samples if self.real.intrinsic_reward is not None else with_reward_bonus(samples, self.reward_bonus)
+            samples = concatenate_samples(synthetic, self.real.sample_transitions(batch_size - n_synthetic, env=env))
+        # the real part's reward source rewrites the whole minibatch, synthetic rows too (their rewards are r̂ as well)
+        source = self.real.reward_source
+        return samples if source is None else source.rewrite(samples, self.real, env)
 
     def _get_samples(self, batch_inds: np.ndarray, env: VecNormalize | None = None) -> ReplayBufferSamples:
         return self.real._get_samples(batch_inds, env=env)

@@ -191,3 +191,74 @@ def atomic_write_path(path: str | os.PathLike, suffix: str | None = None) -> Ite
         os.replace(temporary, final)
     finally:
         temporary.unlink(missing_ok=True)
+
+
+class JournalBook:
+    """
+    A run's side of its preference journal: the journal's history (read once, then kept in step with what this run
+    appends), and how many of its entries the run's preferences include (``included``, saved with the model), so that
+    a run resumed after a crash takes back the answers it lacks instead of asking again.
+
+    :param path: the journal (None: no journal; every method then does nothing)
+    :param entry_shape: (2, segment_length, obs_dim + action_dim), the shape of this run's pairs
+    :param included: entries of the journal the run's preferences already include
+    """
+
+    def __init__(self, path: str | os.PathLike | None, entry_shape: tuple[int, ...], included: int = 0):
+        self.path = None if path is None else os.fspath(path)
+        self.entry_shape = tuple(entry_shape)
+        self.included = included
+        self._history: list[JournalEntry] | None = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_history": None}  # read again from the file
+
+    def history(self) -> list[JournalEntry]:
+        """Every entry of the journal; one that does not fit this run (other pairs, fewer entries) is refused."""
+        if self.path is None:
+            return []
+        if self._history is None:
+            entries = PreferenceJournal(self.path).read()
+            for entry in entries:
+                if entry.inputs.shape != self.entry_shape:
+                    raise ValueError(
+                        f"preference_journal {self.path} holds pairs of shape {entry.inputs.shape}, this model's are "
+                        f"{self.entry_shape} (segment_length, obs_dim + action_dim): not this run's journal"
+                    )
+            if len(entries) < self.included:
+                raise ValueError(
+                    f"preference_journal {self.path} holds {len(entries)} answers, but this model already includes "
+                    f"{self.included}: not this run's journal"
+                )
+            self._history = entries
+        return self._history
+
+    def new_answers(self, session: int) -> list[JournalEntry]:
+        """The journal's answers of feedback session ``session`` that the run does not include yet."""
+        answers = []
+        for entry in self.history()[self.included :]:
+            if entry.session != session:
+                break
+            answers.append(entry)
+        return answers
+
+    def record(self, entries: list[JournalEntry]) -> None:
+        """Append answers to the journal, flushed to disk before returning (``FeedbackContext.record``)."""
+        if self.path is None or not entries:
+            return
+        PreferenceJournal(self.path).append(entries)
+        self.history().extend(entries)
+
+    def retract(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
+        """
+        Record that an answer of ``session`` was taken back (a person's undo, ``FeedbackContext.retract``): the latest
+        answer to query ``entry_id`` by ``annotator`` where they are given, else the session's last answer.
+        """
+        if self.path is None:
+            return
+        history = self.history()
+        undone = undone_index(history, session, entry_id, annotator)
+        if undone is None or undone < self.included:  # an undo line that undoes nothing would break the journal
+            raise ValueError(f"no answer of feedback session {session} to take back (query {entry_id}, annotator {annotator})")
+        PreferenceJournal(self.path).append_undo(session, entry_id, annotator)
+        del history[undone]

@@ -1,11 +1,15 @@
 """Segment pairs for preference queries: where segments may start, how candidates are chosen."""
 
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 import torch as th
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.journal import query_id
+from sb3_pride.common.utils import check_choice, check_positive_ints, check_real
 
 QUERY_SELECTIONS = ("uniform", "disagreement", "entropy", "kcenter", "kcenter_disagreement", "kcenter_entropy")
 
@@ -208,3 +212,129 @@ def select_queries(
         eps = 1e-8
         score = -(p * th.log(p + eps) + (1 - p) * th.log(1 - p + eps)).mean(dim=0)
     return th.topk(score, k=n_queries).indices.cpu().numpy()
+
+
+def stored_transitions(
+    buffer: PreferenceReplayBuffer, rng: np.random.Generator, limit: int | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """
+    (s, a, s') of the transitions stored in ``buffer``: every one, oldest first, or a random choice of ``limit`` of
+    them, drawn before any is copied (REED's consistency pre-training learns from them).
+    """
+    rows = chronological_rows(buffer)
+    n = len(rows) * buffer.n_envs
+    chosen = np.arange(n) if limit is None or n <= limit else rng.choice(n, limit, replace=False)
+    row, env = rows[chosen // buffer.n_envs], chosen % buffer.n_envs
+    return buffer.observations[row, env], buffer.actions[row, env], buffer.next_observations[row, env]
+
+
+def episode_lengths(buffer: PreferenceReplayBuffer) -> list[int]:
+    """The lengths of the finished episodes stored in ``buffer``, each environment's, oldest first."""
+    rows = chronological_rows(buffer)
+    lengths = []
+    for env_idx in range(buffer.n_envs):
+        ends = np.flatnonzero(buffer.dones[rows, env_idx] > 0)
+        lengths.extend(np.diff(np.concatenate([[-1], ends])).tolist())
+    return lengths
+
+
+class QuerySampler:
+    """
+    Where queries come from and which are asked (PEBBLE; B-Pref's sampling schemes): ``candidates_multiplier`` × K
+    random segment pairs of the ``max_query_episodes`` most recent episodes, of which the K most informative by
+    ``selection`` are asked. Also the rows QPA's hybrid replay draws from (the same recent episodes).
+
+    :param segment_length: steps per segment; a segment never crosses an episode end
+    :param selection: "uniform", "disagreement", "entropy", "kcenter", "kcenter_disagreement" or "kcenter_entropy"
+        (``select_queries``); the first feedback session is always uniform (r̂ knows nothing yet)
+    :param candidates_multiplier: candidate pairs per query for the non-uniform selections (PEBBLE: 10)
+    :param max_query_episodes: segments are drawn from this many most recent episodes (PEBBLE: 100; QPA: 10)
+    :param hybrid_replay: QPA's hybrid experience replay (Hu et al., ICLR 2024): this share of each SAC minibatch is
+        drawn from the ``max_query_episodes`` most recent episodes while queries remain to be asked (0: uniform)
+    """
+
+    def __init__(
+        self,
+        segment_length: int,
+        selection: str = "disagreement",
+        candidates_multiplier: int = 10,
+        max_query_episodes: int = 100,
+        hybrid_replay: float = 0.0,
+    ):
+        check_positive_ints(
+            segment_length=segment_length, candidates_multiplier=candidates_multiplier, max_query_episodes=max_query_episodes
+        )
+        check_choice("query_selection", selection, QUERY_SELECTIONS)
+        check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
+        self.segment_length, self.selection = segment_length, selection
+        self.candidates_multiplier, self.max_query_episodes = candidates_multiplier, max_query_episodes
+        self.hybrid_replay = float(hybrid_replay)
+        self.warned_short_episodes = False
+
+    def choose(
+        self,
+        buffer: PreferenceReplayBuffer,
+        n_queries: int,
+        rng: np.random.Generator,
+        member_returns: Callable[[np.ndarray], th.Tensor],
+        labeled_inputs: np.ndarray,
+        asked_before: set[str],
+        first: bool,
+    ) -> SegmentPairs | None:
+        """
+        ``n_queries`` pairs to ask about; pairs whose ``query_id`` is in ``asked_before`` are never chosen again.
+
+        :param member_returns: the ensemble members' segment returns of candidate pairs' inputs (members, n, 2)
+        :param labeled_inputs: the inputs of the pairs labelled so far (the k-center selections' covered points)
+        :param first: the first feedback session, always uniform
+        :return: the chosen pairs (fewer when ``asked_before`` held candidates), or None when no segment fits in the
+            stored episodes yet (a warning, once, when every finished episode is shorter than a segment)
+        """
+        if n_queries == 0:
+            shape = (0, 2, self.segment_length)
+            return SegmentPairs(np.zeros((*shape, *buffer.obs_shape)), np.zeros((*shape, buffer.action_dim)), np.zeros(shape))
+        selection = "uniform" if first else self.selection
+        n_candidates = n_queries if selection == "uniform" else n_queries * self.candidates_multiplier
+        candidates = sample_segment_pairs(buffer, n_candidates, self.segment_length, self.max_query_episodes, rng)
+        if candidates is None:
+            self.warn_short_episodes(buffer)
+            return None
+        if asked_before:
+            candidates = candidates[np.array([query_id(pair) not in asked_before for pair in candidates.inputs])]
+        if selection != "uniform" and len(candidates) > 0:
+            n_obs = candidates.observations.shape[-1]
+            chosen = select_queries(
+                member_returns(candidates.inputs),
+                min(n_queries, len(candidates)),
+                selection,
+                features=pair_features(candidates.observations),
+                labeled_features=pair_features(labeled_inputs[..., :n_obs]),
+            )
+            candidates = candidates[chosen]
+        return candidates
+
+    def unlabeled_pairs(self, buffer: PreferenceReplayBuffer, n_pairs: int, rng: np.random.Generator) -> np.ndarray | None:
+        """The inputs of ``n_pairs`` pairs drawn as queries are, for nobody to label (SURF's unlabelled pairs)."""
+        pairs = sample_segment_pairs(buffer, n_pairs, self.segment_length, self.max_query_episodes, rng, render_states=False)
+        return None if pairs is None else pairs.inputs
+
+    def recent_rows(self, buffer: PreferenceReplayBuffer) -> np.ndarray:
+        """The buffer rows of the episodes queries come from (QPA's hybrid replay draws its share from them)."""
+        return recent_rows(buffer, self.max_query_episodes)
+
+    def warn_short_episodes(self, buffer: PreferenceReplayBuffer) -> None:
+        """
+        Warn once when every finished episode is shorter than a segment (early-terminating envs, e.g. Hopper's falls).
+        Not an error: longer episodes may come, and the session is tried again a segment later; an env whose step
+        limit is shorter than a segment is refused when it is attached.
+        """
+        lengths = episode_lengths(buffer)
+        if self.warned_short_episodes or not lengths or max(lengths) >= self.segment_length:
+            return
+        self.warned_short_episodes = True
+        warnings.warn(
+            f"segment_length={self.segment_length} is longer than every episode so far (longest: {max(lengths)} steps): "
+            "the feedback session waits until an episode holds a segment and is tried again every segment_length "
+            "steps. If episodes end early for long (e.g. falls), choose a smaller segment_length.",
+            stacklevel=3,
+        )

@@ -8,25 +8,6 @@ if TYPE_CHECKING:
     from sb3_pride.pebble.pebble import PEBBLE
 
 
-class UnsupervisedPretrainingCallback(BaseCallback):
-    """
-    PEBBLE's unsupervised pre-training (Algorithm 1, line 3): until the first feedback session, SAC's critic
-    target uses the state-entropy reward r_int (Eq. 3) in place of r̂.
-    """
-
-    model: "PEBBLE"
-
-    def _on_training_start(self) -> None:
-        self._update()
-
-    def _on_step(self) -> bool:
-        self._update()
-        return True
-
-    def _update(self) -> None:
-        self.model.update_reward_source()
-
-
 class FeedbackCallback(BaseCallback):
     """
     Feedback sessions (Algorithm 1, lines 6–21): the first when pre-training ends, then every ``feedback_interval``
@@ -34,16 +15,17 @@ class FeedbackCallback(BaseCallback):
     its answers taken in (``PEBBLE.take_answers()``: label, learn r̂, relabel) at once, or, with
     ``asynchronous_feedback``, at the first step after the teacher has answered, training going on meanwhile; the next
     session is not published before. The first one ends pre-training (``PEBBLE.end_pretraining()``: critic reset and
-    ``critic_reset_updates`` steps on r̂). When no segment fits in the stored episodes yet, the session is tried
-    again a segment later. A session still open when ``learn()`` ends is waited for.
+    ``critic_reset_updates`` steps on r̂); until then SAC learns from the state-entropy reward. When no segment fits in
+    the stored episodes yet, the session is tried again a segment later. A session still open when ``learn()`` ends is
+    waited for.
     """
 
     model: "PEBBLE"
 
     def _on_step(self) -> bool:
         model = self.model
-        if model.feedback_open:
-            if model.answers_ready:
+        if model.feedback.pending is not None:
+            if model.feedback.ready:
                 self._take_answers()
             return True
         if model.feedback_asked >= model.max_feedback or model.num_timesteps < model.next_feedback_step:
@@ -57,12 +39,13 @@ class FeedbackCallback(BaseCallback):
         return True
 
     def _on_training_end(self) -> None:
-        if self.model.feedback_open:  # a teacher's answers are never dropped
+        if self.model.feedback.pending is not None:  # a teacher's answers are never dropped
             self._take_answers()
 
     def _take_answers(self) -> None:
         model = self.model
-        first, published = model.in_pretraining, model.feedback_published_step
+        pending = model.feedback.pending
+        first, published = model.in_pretraining, None if pending is None else pending.published_step
         model.take_answers()
         if model.asynchronous_feedback and published is not None:
             # scheduled from the session's publication, once it is answered: a checkpoint taken while a session is

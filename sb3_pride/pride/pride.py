@@ -7,12 +7,14 @@ from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
+from sb3_pride.common.env_checks import check_episode_length
 from sb3_pride.common.generator import GenerationReport, TransitionGenerator
 from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
 from sb3_pride.pride.callbacks import GeneratorCallback
-from sb3_pride.pride.recipes import check_generator_kwargs, check_synthetic_settings, migrate_saved_settings
+from sb3_pride.pebble.migration import migrate_generator_settings
+from sb3_pride.pride.recipes import check_generator_kwargs, check_synthetic_settings
 
 
 class PRIDE(PEBBLE):
@@ -55,6 +57,7 @@ class PRIDE(PEBBLE):
     """
 
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = DualReplayBuffer  # type: ignore[assignment]
+    phase_callbacks: ClassVar[tuple[type[BaseCallback], ...]] = (*PEBBLE.phase_callbacks, GeneratorCallback)
     replay_buffer: DualReplayBuffer  # type: ignore[assignment]
     generator: TransitionGenerator
 
@@ -84,7 +87,7 @@ class PRIDE(PEBBLE):
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
         super().__init__(policy, env, replay_buffer_kwargs=replay_buffer_kwargs, _init_setup_model=False, **pebble_kwargs)
         if _init_setup_model and self.env is not None:  # PEBBLE skipped it, as it does for load()
-            self._check_episode_length(self.env, self.segment_length)
+            check_episode_length(self.env, self.segment_length)
         self.synthetic_ratio = synthetic_ratio
         self.synthetic_start = synthetic_start
         self.synthetic_ramp = synthetic_ramp
@@ -104,7 +107,7 @@ class PRIDE(PEBBLE):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        self.generator_kwargs = {**migrate_saved_settings(self.__dict__), **self.generator_kwargs}  # a model saved by 0.1.0
+        self.generator_kwargs = {**migrate_generator_settings(self.__dict__), **self.generator_kwargs}  # a model saved by 0.1.0
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         options = dict(seed=self.seed, device=self.device)
@@ -122,9 +125,6 @@ class PRIDE(PEBBLE):
     def real_buffer(self) -> PreferenceReplayBuffer:
         """B_real, the agent's own transitions with their true rewards aside."""
         return self.replay_buffer.real
-
-    def _preference_callbacks(self) -> list[BaseCallback]:
-        return [*super()._preference_callbacks(), GeneratorCallback(verbose=self.verbose)]
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         # Algorithm 1, lines 34–37: each SAC minibatch of M rows holds round(u·M) synthetic and M − round(u·M) real
@@ -220,11 +220,6 @@ class PRIDE(PEBBLE):
                 self.logger.record(f"diffusion/{key}", value)
         if report.kept_dynamics_error_ratio is not None:
             self.logger.record("diffusion/kept_dynamics_error_ratio", report.kept_dynamics_error_ratio)
-
-    def set_parameters(self, load_path_or_dict, exact_match: bool = True, device="auto") -> None:  # type: ignore[override]
-        if isinstance(load_path_or_dict, dict) and "diffusion" in load_path_or_dict:  # saved by version 0.1.0
-            load_path_or_dict = {("generator.diffusion" if k == "diffusion" else k): v for k, v in load_path_or_dict.items()}
-        super().set_parameters(load_path_or_dict, exact_match, device)
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

@@ -8,13 +8,13 @@ it (``SYNTHER_SIZES`` for theirs).
 """
 
 import copy
-import warnings
 from typing import Any
 
 import numpy as np
 
 from sb3_pride.common.generator import TransitionGenerator
 from sb3_pride.common.utils import check_real, merge_kwargs
+from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS
 
 #: the paper's PRIDE: synthetic data from the first reward model on at full u, in place of real rows in each
 #: minibatch, from an unconditional diffusion model of [s, a, s'] refitted from scratch on all real transitions
@@ -69,35 +69,15 @@ def expand_recipe(entry: dict[str, Any]) -> dict[str, Any]:
     return merge_kwargs(recipe(settings.pop("recipe")), settings)
 
 
-#: PRIDE settings of version 0.1.0 and their place in 0.2.0's ``generator_kwargs``
-RENAMED_SETTINGS: dict[str, str] = {
-    "diffusion_width": "width",
-    "diffusion_blocks": "n_blocks",
-    "diffusion_train_steps": "train_steps",
-    "diffusion_sample_steps": "sample_steps",
-    "diffusion_warm_start": "warm_start",
-    "diffusion_normalization": "normalization",
-    "diffusion_kwargs": "diffusion_kwargs",
-    "model_state_change": "model_state_change",
-    "generation": "generation",
-    "anchor_noise": "anchor_noise",
-    "diffusion_window": "window",
-    "synthetic_keep_quantile": "keep_quantile",
-    "synthetic_filter": "filter",
-    "fidelity_check": "fidelity_check",
-    "dynamics_kwargs": "dynamics_kwargs",
-}
-
-
 def check_generator_kwargs(generator_kwargs: Any, other_kwargs: dict[str, Any]) -> None:
     """
     Fail at construction, not at the first retrain: ``generator_kwargs`` must be ``TransitionGenerator`` arguments
     other than the run's seed and device (PRIDE's), and no generator setting may come as a keyword of its own (as in
     version 0.1.0: the error names its new place).
     """
-    old = sorted(set(other_kwargs) & set(RENAMED_SETTINGS))
+    old = sorted(set(other_kwargs) & set(RENAMED_GENERATOR_SETTINGS))
     if old:
-        hints = ", ".join(f"{name} -> generator_kwargs={{{RENAMED_SETTINGS[name]!r}: ...}}" for name in old)
+        hints = ", ".join(f"{name} -> generator_kwargs={{{RENAMED_GENERATOR_SETTINGS[name]!r}: ...}}" for name in old)
         raise ValueError(f"PRIDE's generator settings are given in generator_kwargs: {hints}")
     if generator_kwargs is None:
         return
@@ -123,19 +103,3 @@ def check_synthetic_settings(synthetic_ratio: Any, synthetic_on_top: Any) -> Non
             "batch_size of them real), got synthetic_ratio=1.0; for minibatches of synthetic rows only, set "
             "synthetic_on_top=False"
         )
-
-
-def migrate_saved_settings(saved: dict[str, Any]) -> dict[str, Any]:
-    """
-    The ``generator_kwargs`` of a model saved by version 0.1.0, from the flat settings it holds (removed from
-    ``saved``, a model's ``__dict__``); an empty dict for a model saved by this version. A development model's
-    ``synthetic_consistency`` (the generator's transitions in REED's consistency passes, not kept) is dropped, with a
-    warning where it was on.
-    """
-    if saved.pop("synthetic_consistency", 0.0):
-        warnings.warn(
-            "this model was saved with synthetic_consistency, which PRIDE no longer offers (the generator's transitions "
-            "did not help reward learning): its consistency passes now take the real transitions only",
-            stacklevel=2,
-        )
-    return {new: saved.pop(old) for old, new in RENAMED_SETTINGS.items() if old in saved}

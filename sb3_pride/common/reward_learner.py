@@ -1,0 +1,264 @@
+"""
+r̂ and how it learns: PEBBLE's reward ensemble, trained on the preference dataset D after each feedback session, with
+the reward-learning options from the literature. One object, given to ``PEBBLE`` as ``reward_kwargs``.
+"""
+
+import inspect
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch as th
+from stable_baselines3.common.type_aliases import ReplayBufferSamples
+from stable_baselines3.common.vec_env import VecNormalize
+
+from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.entropy import StateEntropyReward
+from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
+from sb3_pride.common.queries import QuerySampler, stored_transitions
+from sb3_pride.common.reward_model import (
+    ExplorationBonus,
+    PreferenceDataset,
+    PseudoLabels,
+    RewardEnsemble,
+    RobustLabels,
+    check_temporal_crop,
+)
+from sb3_pride.common.utils import check_positive_ints, check_real, make_option
+
+#: the options given as False (off), True (the published settings) or a dict, and the class of their settings
+OPTION_SETTINGS: dict[str, type] = {
+    "robust_labels": RobustLabels,
+    "pseudo_labels": PseudoLabels,
+    "dynamics_consistency": DynamicsConsistency,
+    "exploration_bonus": ExplorationBonus,
+}
+
+
+@dataclass
+class RewardLearningReport:
+    """What one feedback session's reward learning did (logged under ``reward_model/``)."""
+
+    loss: float
+    accuracy: float
+    epochs: int
+    consistency_loss: float | None = None
+    trusted_labels: int | None = None
+    flipped_labels: int | None = None
+
+
+class RewardLearner:
+    """
+    PEBBLE's reward learning (Lee, Smith & Abbeel, ICML 2021): an ensemble of MLPs r̂(s, a) trained on the teacher's
+    preferences with the Bradley–Terry loss (Eqs. 1–2), up to ``epochs`` epochs per feedback session, stopping at
+    ``early_stop`` training accuracy (B-Pref's 97%). The options below learn more from each label or explore where r̂
+    is unsure; all are off by default (the published PEBBLE).
+
+    :param obs_dim: size of the flat observations
+    :param action_dim: size of the actions
+    :param segment_length: steps per segment of the pairs it learns from
+    :param ensemble_size: members of the ensemble (PEBBLE: 3)
+    :param net_arch: hidden layers of each member (PEBBLE: 3 × 256)
+    :param learning_rate: Adam step size (PEBBLE: 3e-4)
+    :param batch_size: preference pairs per minibatch (PEBBLE: 128)
+    :param epochs: most epochs over D per feedback session (PEBBLE: 50 on DMC, 10 on Meta-World)
+    :param early_stop: a session's training ends after the first epoch whose training accuracy exceeds it (B-Pref's
+        0.97). None: every one of ``epochs`` runs (at low budgets the early stop under-trains r̂)
+    :param temporal_crop: SURF's temporal cropping (Park et al., ICLR 2022): each pair cropped to one random length in
+        ``(min_length, max_length)`` at every minibatch, with its own start in each segment; ``max_length <=
+        segment_length``: (35, 45) at segment 50 is QPA's S−15..S−5. None: whole segments
+    :param robust_labels: RIME's robust reward learning for noisy teachers (Cheng et al., ICML 2024): each epoch
+        trains on the labels the ensemble finds plausible and flips those it is confident are wrong
+        (``RobustLabels``). True: RIME's settings; a dict: ``RobustLabels``' settings. False: every label as given
+    :param pseudo_labels: SURF's semi-supervised reward learning: unlabelled pairs from the replay buffer beside each
+        labelled minibatch, each member learning from its own confident pseudo-labels (``PseudoLabels``). True:
+        SURF's walker-walk settings; a dict: ``PseudoLabels``' settings. False: labels only
+    :param dynamics_consistency: REED's self-supervised pre-training of the members' encoder (Metcalf et al., CoRL
+        2023) on the stored transitions before each session's reward learning (``DynamicsConsistency``). True: REED's
+        settings; a dict: ``DynamicsConsistency``' settings. False: labels only
+    :param exploration_bonus: RUNE's exploration bonus (Liang et al., ICLR 2022): SAC learns from r̂ + β_t · σ, σ the
+        members' disagreement (``ExplorationBonus``). True: RUNE's settings; a dict: its settings. False: r̂ alone.
+        Needs ``ensemble_size >= 2``
+    :param device: where the networks live
+    """
+
+    def __init__(
+        self,
+        obs_dim: int,
+        action_dim: int,
+        segment_length: int,
+        ensemble_size: int = 3,
+        net_arch: list[int] | tuple[int, ...] = (256, 256, 256),
+        learning_rate: float = 3e-4,
+        batch_size: int = 128,
+        epochs: int = 50,
+        early_stop: float | None = 0.97,
+        temporal_crop: tuple[int, int] | None = None,
+        robust_labels: bool | dict[str, Any] = False,
+        pseudo_labels: bool | dict[str, Any] = False,
+        dynamics_consistency: bool | dict[str, Any] = False,
+        exploration_bonus: bool | dict[str, Any] = False,
+        device: th.device | str = "auto",
+    ):
+        self.check_kwargs({name: value for name, value in locals().items() if name in self.settings()}, segment_length)
+        self.batch_size, self.epochs, self.early_stop = batch_size, epochs, early_stop
+        self.temporal_crop = check_temporal_crop(temporal_crop, segment_length)
+        #: RIME's running selection of trusted labels (None: every label as given), saved with the model
+        self.label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
+        self.pseudo_labels: PseudoLabels | None = make_option("pseudo_labels", pseudo_labels, PseudoLabels)
+        self.exploration_bonus: ExplorationBonus | None = make_option("exploration_bonus", exploration_bonus, ExplorationBonus)
+        consistency = make_option("dynamics_consistency", dynamics_consistency, DynamicsConsistency)
+        #: r̂, the ensemble
+        self.ensemble = RewardEnsemble(
+            obs_dim, action_dim, n_members=ensemble_size, net_arch=tuple(net_arch), learning_rate=learning_rate, device=device
+        )
+        #: REED's consistency heads on the members' encoder (None: off)
+        self.consistency = None if consistency is None else ConsistencyModel(self.ensemble, obs_dim, consistency)
+
+    @classmethod
+    def settings(cls) -> dict[str, Any]:
+        """The settings ``reward_kwargs`` may give, with their defaults."""
+        parameters = inspect.signature(cls.__init__).parameters
+        return {name: p.default for name, p in parameters.items() if p.default is not inspect.Parameter.empty and name != "device"}
+
+    @classmethod
+    def check_kwargs(cls, reward_kwargs: Any, segment_length: int) -> None:
+        """
+        Refuse bad settings before anything is made, naming the setting: an unknown name, a value out of range, an
+        option that is not True, False or a dict of its settings.
+        """
+        if not isinstance(reward_kwargs, dict):
+            raise ValueError(f"reward_kwargs must be a dict of RewardLearner's settings, got {reward_kwargs!r}")
+        unknown = sorted(set(reward_kwargs) - set(cls.settings()))
+        if unknown:
+            raise ValueError(f"reward_kwargs: unknown settings {unknown}; RewardLearner takes {sorted(cls.settings())}")
+        settings = {**cls.settings(), **reward_kwargs}
+        check_positive_ints(**{f"reward_kwargs: {name}": settings[name] for name in ("ensemble_size", "batch_size", "epochs")})
+        check_real("reward_kwargs: learning_rate", settings["learning_rate"], lambda lr: 0 < lr < np.inf, "> 0 and finite")
+        if settings["early_stop"] is not None:
+            check_real(
+                "reward_kwargs: early_stop", settings["early_stop"], lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)"
+            )
+        check_temporal_crop(settings["temporal_crop"], segment_length)
+        for name, settings_class in OPTION_SETTINGS.items():
+            make_option(name, settings[name], settings_class)
+        if settings["exploration_bonus"] is not False and settings["ensemble_size"] < 2:
+            raise ValueError(
+                f"exploration_bonus needs ensemble_size >= 2 (its σ is the members' spread), got {settings['ensemble_size']}"
+            )
+
+    def learn(
+        self, preferences: PreferenceDataset, buffer: PreferenceReplayBuffer, queries: QuerySampler, rng: np.random.Generator
+    ) -> RewardLearningReport:
+        """
+        Train r̂ on every preference so far (Eqs. 1–2); with ``dynamics_consistency`` its encoder first learns from the
+        transitions stored in ``buffer`` (REED), with ``pseudo_labels`` it also learns from unlabelled pairs drawn from
+        ``buffer`` as ``queries`` draws queries (SURF).
+        """
+        consistency_loss = None
+        if self.consistency is not None:
+            transitions = stored_transitions(buffer, rng, self.consistency.settings.max_transitions)
+            consistency_loss = self.consistency.train_epochs(*transitions, rng)
+        unlabeled = None
+        if self.pseudo_labels is not None:
+            n = min(self.pseudo_labels.unlabeled_per_label * len(preferences), self.pseudo_labels.max_unlabeled)
+            unlabeled = queries.unlabeled_pairs(buffer, n, rng)
+        loss, accuracy, epochs = self.ensemble.train_epochs(
+            preferences,
+            self.epochs,
+            self.batch_size,
+            target_accuracy=1.0 if self.early_stop is None else self.early_stop,  # no training accuracy exceeds 1
+            rng=rng,
+            temporal_crop=self.temporal_crop,
+            robust_labels=self.label_selection,
+            unlabeled=unlabeled,
+            pseudo_labels=self.pseudo_labels,
+        )
+        selection = self.label_selection
+        return RewardLearningReport(
+            loss, accuracy, epochs, consistency_loss, *((selection.trusted, selection.flipped) if selection else (None, None))
+        )
+
+    def predict(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """r̂(s, a), the members' mean, NumPy in and out."""
+        return self.ensemble.predict(observations, actions)
+
+    def correlation(self, buffer: PreferenceReplayBuffer, rng: np.random.Generator, n_samples: int = 10_000) -> float:
+        """Pearson correlation of r̂ with the true reward on ``n_samples`` stored transitions: the reward model's health."""
+        observations, actions, true_rewards = buffer.transition_sample(n_samples, rng)
+        predicted = self.predict(observations, actions)
+        if np.std(predicted) == 0 or np.std(true_rewards) == 0:
+            return float("nan")
+        return float(np.corrcoef(predicted, true_rewards)[0, 1])
+
+    @th.no_grad()
+    def bonus(self, samples: ReplayBufferSamples, step: int, vec_normalize: VecNormalize | None = None) -> th.Tensor:
+        """
+        RUNE's β_t · σ(s, a) of a minibatch, σ the members' standard deviation of r̂_m(s, a). Under ``VecNormalize`` the
+        observations are un-normalized first (r̂ reads them as stored; values VecNormalize clipped stay clipped).
+        """
+        assert self.exploration_bonus is not None, "exploration_bonus is off"
+        observations = samples.observations
+        if vec_normalize is not None:
+            raw = vec_normalize.unnormalize_obs(observations.cpu().numpy())
+            observations = th.as_tensor(raw, dtype=th.float32, device=samples.rewards.device)
+        inputs = th.cat([observations.float(), samples.actions.float()], dim=-1).to(self.ensemble.device)
+        sigma = self.ensemble(inputs).std(dim=0, correction=0)  # (B, 1), like the rewards
+        return (self.exploration_bonus.beta(step) * sigma).to(samples.rewards.device, samples.rewards.dtype)
+
+    def __getstate__(self) -> dict:
+        # the networks are saved by the algorithm as state dicts (``reward_model``, ``reward_learner.consistency``)
+        return {**self.__dict__, "ensemble": None, "consistency": None}
+
+
+class ReplayRewards:
+    """
+    The rewards SAC learns from, as the replay buffer asks for them (its ``reward_source``): r_int, the k-NN state
+    entropy (Eq. 3), while pre-training; then r̂ of ``learner`` (Eq. 1), stored with each new transition and relabeled
+    after each reward update, plus RUNE's bonus on each minibatch where it is on; and the rows QPA's hybrid replay
+    draws its share of each minibatch from. The algorithm says which phase it is in (``update()``).
+
+    :param learner: r̂
+    :param state_entropy: r_int
+    """
+
+    def __init__(self, learner: RewardLearner, state_entropy: StateEntropyReward):
+        self.learner, self.state_entropy = learner, state_entropy
+        #: r_int until the first feedback session
+        self.pretraining = True
+        #: whether r̂ has learned from labels (before that, new transitions store 0, overwritten by the first relabel)
+        self.learned = False
+        self.bonus_active = False
+        self.step = 0
+        self.vec_normalize: VecNormalize | None = None
+        self.recent_share, self.recent_rows = 0.0, None
+
+    def update(
+        self,
+        step: int,
+        pretraining: bool,
+        learned: bool,
+        recent_rows: np.ndarray | None = None,
+        recent_share: float = 0.0,
+        vec_normalize: VecNormalize | None = None,
+    ) -> None:
+        """Where training stands: the env step (RUNE's β_t), the phase, and QPA's rows (None: uniform minibatches)."""
+        self.step, self.pretraining, self.learned, self.vec_normalize = step, pretraining, learned, vec_normalize
+        self.bonus_active = self.learner.exploration_bonus is not None and not pretraining and learned
+        self.recent_rows, self.recent_share = recent_rows, recent_share if recent_rows is not None else 0.0
+
+    def new_rewards(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        if not self.learned:
+            return np.zeros(len(observations), dtype=np.float32)
+        return self.learner.predict(observations, actions)
+
+    def rewrite(
+        self, samples: ReplayBufferSamples, buffer: PreferenceReplayBuffer, env: VecNormalize | None
+    ) -> ReplayBufferSamples:
+        if self.pretraining:
+            # the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
+            stored = buffer.to_torch(buffer.stored_observations(env), copy=False)
+            return samples._replace(rewards=self.state_entropy(samples.observations, stored).to(samples.rewards.dtype))
+        if self.bonus_active:
+            return samples._replace(rewards=samples.rewards + self.learner.bonus(samples, self.step, self.vec_normalize))
+        return samples

@@ -1,0 +1,240 @@
+"""
+A feedback session's way from queries to answers (Algorithm 1, lines 6–15): publish the queries to the teacher,
+synchronously or in a thread of its own, take the answers in once they are all given, check them, journal them.
+"""
+
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+from stable_baselines3.common.logger import Logger
+
+from sb3_pride.common.journal import JournalBook, JournalEntry, merge_answers
+from sb3_pride.common.queries import SegmentPairs
+from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
+
+if TYPE_CHECKING:
+    from stable_baselines3.common.vec_env import VecEnv
+
+    from sb3_pride.common.buffers import PreferenceReplayBuffer
+
+
+@dataclass
+class PendingFeedback:
+    """
+    A published feedback session: the answers the journal already had (``inputs``/``labels``), the teacher's answers
+    to the new queries (``answers``: a finished future in blocking feedback) and when it was published.
+    """
+
+    session: int
+    inputs: np.ndarray
+    labels: np.ndarray
+    n_journal_entries: int
+    journal_length: int
+    new_inputs: np.ndarray
+    answers: "Future[np.ndarray]"
+    published_step: int
+    published_time: float
+
+
+@dataclass
+class SessionAnswers:
+    """A closed feedback session: every pair asked (the journal's answers first) and its label μ (NaN: skipped)."""
+
+    session: int
+    inputs: np.ndarray
+    labels: np.ndarray
+    published_step: int
+    published_time: float
+
+
+def check_labels(answer: object, n_pairs: int) -> np.ndarray:
+    """A teacher's answer as labels μ, checked: one per pair, each in [0, 1] or NaN (skipped)."""
+    try:
+        labels = np.asarray(answer)
+    except ValueError as error:  # ragged nesting
+        raise ValueError(f"teacher must return one number per segment pair, got {answer!r}: {error}") from None
+    if labels.dtype.kind not in "biuf":  # None, strings, objects: np.asarray(dtype=float) would make None a NaN
+        raise ValueError(f"teacher must return numbers (NaN to skip a pair), got {answer!r}")
+    labels = labels.astype(np.float64).reshape(-1)
+    if len(labels) != n_pairs:
+        raise ValueError(f"teacher returned {len(labels)} labels for {n_pairs} segment pairs")
+    finite = labels[~np.isnan(labels)]
+    if np.any((finite < 0) | (finite > 1)):
+        raise ValueError("teacher labels must be in [0, 1] (P[second segment preferred]) or NaN (skipped)")
+    return labels
+
+
+class FeedbackLoop:
+    """
+    The teacher's side of PEBBLE's feedback sessions. ``publish()`` gives a session's queries to the teacher: answers
+    of that session already in the journal (given before a crash) are taken from it, the teacher is asked only for
+    the rest, either at once or in a thread of its own (asynchronous feedback: training goes on meanwhile).
+    ``take()`` waits for the answers if they are not all in, checks and journals them (an ``InteractiveTeacher``
+    journals each answer itself, as it is given, through its ``FeedbackContext``) and returns them.
+
+    :param journal: the run's preference journal
+    """
+
+    def __init__(self, journal: JournalBook):
+        self.journal = journal
+        #: (name, teacher) of a teacher given by name (a scripted one is saved with its random state)
+        self.named_teacher: tuple[str, Teacher | InteractiveTeacher] | None = None
+        self.teacher: Teacher | InteractiveTeacher | None = None
+        self.pending: PendingFeedback | None = None
+        self._records: deque[tuple[str, float]] = deque()  # what the teacher asked to log (thread-safe appends)
+
+    def __getstate__(self) -> dict:
+        # a session in progress is not saved (the journal keeps its answers); of the teachers given by name, only
+        # B-Pref's scripted ones are, with their random state: any other is made again from its name
+        named = self.named_teacher if self.named_teacher and isinstance(self.named_teacher[1], ScriptedTeacher) else None
+        return {**self.__dict__, "named_teacher": named, "teacher": None, "pending": None, "_records": deque()}
+
+    def resolve(self, teacher: str | Teacher | InteractiveTeacher, seed: int | None) -> Teacher | InteractiveTeacher:
+        """The teacher object: a registered name is made into one once (``make_teacher``), with the run's seed."""
+        if isinstance(teacher, str):
+            if self.named_teacher is None or self.named_teacher[0] != teacher:
+                self.named_teacher = (teacher, make_teacher(teacher, seed=seed))
+            teacher = self.named_teacher[1]
+        self.teacher = teacher
+        return teacher
+
+    def attach(
+        self,
+        teacher: str | Teacher | InteractiveTeacher,
+        seed: int | None,
+        env: "VecEnv | None",
+        buffer: "PreferenceReplayBuffer | None",
+        progress: tuple[int, int],
+    ) -> None:
+        """
+        Resolve the teacher; an ``InteractiveTeacher`` is attached to the env and the replay buffer (so that an env it
+        cannot show fails now, not at the first feedback session) and shown ``progress`` (asked, budget); any other
+        teacher records nothing beside the transitions.
+        """
+        resolved = self.resolve(teacher, seed)
+        if isinstance(resolved, InteractiveTeacher):
+            if env is not None and buffer is not None:
+                resolved.attach(env, buffer)
+                resolved.show_progress(*progress)
+        elif buffer is not None:  # a resumed buffer may say otherwise
+            buffer.record_render_states = False
+
+    @property
+    def ready(self) -> bool:
+        """Whether the teacher has answered every query of the open session (``take()`` won't wait)."""
+        return self.pending is not None and self.pending.answers.done()
+
+    def publish(
+        self,
+        context: FeedbackContext,
+        n_queries: int,
+        choose: Callable[[int, set[str]], SegmentPairs | None],
+        step: int,
+        asynchronous: bool,
+    ) -> bool:
+        """
+        Open feedback session ``context.session`` of ``n_queries`` queries.
+
+        :param context: what the teacher is told (its ``record``, ``retract`` and ``log`` are this loop's)
+        :param choose: ``choose(n, asked_before)``: n new pairs, none of whose ``query_id`` is in ``asked_before``
+            (None when no segment fits in the stored episodes yet)
+        :param step: the env step it is published at
+        :param asynchronous: True: the teacher answers in a thread of its own and this returns at once
+        :return: False when no segment fits in the stored episodes yet (nothing was asked)
+        """
+        if self.pending is not None:
+            raise RuntimeError(f"feedback session {self.pending.session} is still open: take_answers() before publishing more")
+        assert self.teacher is not None, "resolve() the teacher first"
+        # several annotators' answers to one query are one answer: their mean μ (journal.merge_answers)
+        raw = self.journal.new_answers(context.session)
+        journal_length = len(self.journal.history())  # before the teacher journals this session's new answers
+        journaled = merge_answers(raw)[:n_queries]
+        kept = {entry.id for entry in journaled}
+        candidates = choose(n_queries - len(journaled), {entry.id for entry in self.journal.history()})
+        if candidates is None:
+            return False
+        answers: Future[np.ndarray] = Future()
+        if len(candidates) == 0:
+            answers.set_result(np.zeros(0))
+        elif asynchronous:
+            # a daemon thread: a person who never answers does not keep the process alive after an interrupt
+            threading.Thread(target=self._answer, args=(candidates, context, answers), name="teacher", daemon=True).start()
+        else:
+            answers.set_result(self.ask(candidates, context))  # a teacher's error is raised here: nothing recorded
+        self.pending = PendingFeedback(
+            session=context.session,
+            inputs=np.stack([entry.inputs for entry in journaled]) if journaled else candidates.inputs[:0],
+            labels=np.array([entry.label for entry in journaled], dtype=np.float64),
+            n_journal_entries=sum(entry.id in kept for entry in raw),
+            journal_length=journal_length,
+            new_inputs=candidates.inputs,
+            answers=answers,
+            published_step=step,
+            published_time=time.monotonic(),
+        )
+        return True
+
+    def context(self, session: int, asked_before: int, budget: int) -> FeedbackContext:
+        """What an interactive teacher is told: answers go straight to the journal, log records to this loop."""
+        return FeedbackContext(
+            session=session,
+            asked_before=asked_before,
+            budget=budget,
+            record=self.journal.record,
+            retract=self.journal.retract,
+            log=lambda key, value: self._records.append((key, value)),  # logged later, by the model's thread
+        )
+
+    def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray:
+        """The teacher's labels μ for ``pairs``, checked (``check_labels``)."""
+        teacher = self.teacher
+        answer = teacher.ask(pairs, context) if isinstance(teacher, InteractiveTeacher) else teacher(pairs)  # type: ignore[operator, union-attr]
+        return check_labels(answer, len(pairs))
+
+    def _answer(self, pairs: SegmentPairs, context: FeedbackContext, answers: "Future[np.ndarray]") -> None:
+        """The teacher's thread (asynchronous feedback): its labels, or its error, go into ``answers``."""
+        answers.set_running_or_notify_cancel()
+        try:
+            answers.set_result(self.ask(pairs, context))
+        except BaseException as error:  # raised by take() in the model's thread
+            answers.set_exception(error)
+
+    def take(self, logger: Logger) -> SessionAnswers:
+        """
+        Close the open session, waiting for its answers: journal them (a scripted teacher's; an interactive teacher
+        journaled each as it was given) and return them. A teacher's error is raised here, with nothing of the session
+        recorded; what the teacher asked to log goes to ``logger``.
+        """
+        pending = self.pending
+        if pending is None:
+            raise RuntimeError("no feedback session is open: publish_queries() first")
+        try:
+            new_labels = pending.answers.result()
+        except BaseException:
+            if pending.answers.done():  # the teacher failed: the session is over, nothing of it recorded
+                self.pending = None
+            raise  # an interrupt while waiting leaves the session open: the teacher may still answer
+        finally:
+            while self._records:
+                logger.record(*self._records.popleft())
+        self.pending = None
+        interactive = isinstance(self.teacher, InteractiveTeacher)
+        # the journal is written before the answers are used: a crash from here on loses none of them
+        if not interactive:
+            self.journal.record(
+                [JournalEntry(pending.session, pair, label) for pair, label in zip(pending.new_inputs, new_labels, strict=True)]
+            )
+        if interactive and self.journal.path is not None:
+            # every answer the teacher journaled during the session (several per query from several annotators)
+            self.journal.included += pending.n_journal_entries + len(self.journal.history()) - pending.journal_length
+        else:
+            self.journal.included += pending.n_journal_entries + len(new_labels)
+        inputs = np.concatenate([pending.inputs, pending.new_inputs])
+        labels = np.concatenate([pending.labels, new_labels])
+        return SessionAnswers(pending.session, inputs, labels, pending.published_step, pending.published_time)
