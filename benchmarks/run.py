@@ -12,9 +12,20 @@ task gets its YAML entry's own value (e.g. u = 0.25 on cheetah-run, 2000 queries
 reward ignores both. Each run folder holds ``settings.json``, ``evaluations.npz`` (SB3's
 EvalCallback: deterministic true return, and success for Meta-World), ``curve.csv``, ``result.json`` and
 ``progress.csv`` (SB3's logger: feedback counts, reward-model accuracy and true-reward correlation, diffusion
-fidelity and timings, SAC losses). ``settings.json`` records the run's settings, the algorithm's defaults, the
-``sb3_pride`` version, the git commit of the tree (and whether it had uncommitted changes) and the library versions
-and CPU.
+fidelity and timings, SAC losses).
+
+``settings.json`` records the run's settings, the algorithm's defaults and where the run came from:
+
+- ``version`` (:func:`provenance`): the ``sb3_pride`` version (its ``__version__``, the one source of it), the folder
+  it was imported from, the git commit of the checkout and whether the checkout had uncommitted changes, and the code
+  of the package itself: ``code_tree``, the git tree hash of ``sb3_pride/`` at that commit, and ``code_dirty``, whether
+  ``sb3_pride/`` had changes of its own. Two runs with the same ``code_tree`` and no ``code_dirty`` ran the same
+  package code, whatever else (results, prose) their commits differ by; ``benchmarks/results_page.py`` compares them.
+- ``time``: ``started`` (when the worker began) and ``finished`` (when the run's last file was written), in UTC,
+  ISO 8601; ``finished`` is ``null`` until the run ends, so a run cut off shows as unfinished. The worker writes
+  ``settings.json`` at the start and rewrites it, with ``finished``, at the end.
+- ``system`` (:func:`system_info`): the CPU model and the versions of Python, torch, SB3, Gymnasium, MuJoCo,
+  dm_control, Meta-World and shimmy.
 
 Named configurations (``hyperparams/<tier>/variants.yml``) and grids of them (``benchmarks/grids/*.yml``) are run by
 ``benchmarks/grid.py``, which uses this module's functions.
@@ -221,29 +232,52 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     return specs
 
 
+def git(folder: Path, *argv: str) -> str | None:
+    """``git argv`` run in ``folder``, its output stripped (``None`` where git fails or is missing)."""
+    try:
+        done = subprocess.run(["git", *argv], cwd=folder, capture_output=True, text=True, timeout=30)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return done.stdout.strip() if done.returncode == 0 else None
+
+
 def provenance() -> dict[str, Any]:
     """
     What code made a run: the version of the ``sb3_pride`` imported (its ``__version__``; an editable install's
-    metadata keeps the version it was installed at), the git commit of this tree and whether the tree had uncommitted
-    changes (``None`` outside a git checkout).
+    metadata keeps the version it was installed at), the folder it was imported from, and, from the git checkout that
+    folder lies in, the commit, whether the checkout had uncommitted changes to tracked files (``dirty``), the tree
+    hash of ``sb3_pride/`` at that commit (``code_tree``) and whether ``sb3_pride/`` itself differed from it, untracked
+    files included (``code_dirty``). The git fields are ``None`` outside a git checkout (an installed wheel).
     """
     import sb3_pride
 
-    def git(*argv: str) -> str | None:
-        try:
-            done = subprocess.run(["git", *argv], cwd=ROOT, capture_output=True, text=True, timeout=30)
-        except (OSError, subprocess.TimeoutExpired):
-            return None
-        return done.stdout.strip() if done.returncode == 0 else None
+    package = Path(sb3_pride.__file__).resolve().parent
+    checkout = git(package, "rev-parse", "--show-toplevel")
+    commit = git(package, "rev-parse", "HEAD") if checkout else None
+    found: dict[str, Any] = {"sb3_pride": sb3_pride.__version__, "sb3_pride_path": str(package), "commit": commit, "dirty": None,
+             "code_tree": None, "code_dirty": None}  # fmt: skip
+    if commit is None or checkout is None:
+        return found
+    status = git(package, "status", "--porcelain", "--untracked-files=no")
+    found["dirty"] = None if status is None else bool(status)
+    inside = package.relative_to(Path(checkout).resolve()).as_posix()  # "sb3_pride"
+    found["code_tree"] = git(package, "rev-parse", f"HEAD:{inside}")
+    code_status = git(package, "status", "--porcelain", "--untracked-files=normal", "--", ".")
+    found["code_dirty"] = None if code_status is None else bool(code_status)
+    return found
 
-    commit = git("rev-parse", "HEAD")
-    status = git("status", "--porcelain", "--untracked-files=no") if commit else None
-    return {"sb3_pride": sb3_pride.__version__, "commit": commit, "dirty": None if status is None else bool(status)}
+
+def utc_now() -> str:
+    """The time now, UTC, ISO 8601 to the second (``2025-01-31T12:00:00+00:00``)."""
+    from datetime import datetime, timezone
+
+    return datetime.now(timezone.utc).isoformat(timespec="seconds")
 
 
 def system_info() -> dict[str, str]:
     """
-    SB3's system info (OS, Python, SB3, PyTorch, NumPy, Gymnasium versions) plus the simulators' versions and the CPU:
+    SB3's system info (OS, Python, SB3, PyTorch, NumPy, Gymnasium versions) plus the simulators' versions (MuJoCo,
+    dm_control, Meta-World, shimmy), ``sb3_pride``'s ``__version__`` and the CPU model:
     the same seed gives the same run only on the same CPU kind and library versions (float rounding differs), so a
     run records them.
     """
@@ -253,12 +287,17 @@ def system_info() -> dict[str, str]:
     import torch as th
     from stable_baselines3.common.utils import get_system_info
 
+    import sb3_pride
+
     info, _ = get_system_info(print_info=False)
-    for package in ("mujoco", "dm-control", "metaworld", "shimmy", "sb3_pride"):
+    for package in ("mujoco", "dm-control", "metaworld", "shimmy"):
         try:
             info[package] = metadata.version(package)
         except metadata.PackageNotFoundError:
             pass
+    # the package's own __version__, as in provenance(): an editable install's metadata keeps the version it was
+    # installed at
+    info["sb3_pride"] = sb3_pride.__version__
     cpuinfo = Path("/proc/cpuinfo")
     models = (
         [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if line.startswith("model name")]
@@ -278,6 +317,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.logger import configure
 
+    started = utc_now()
     th.set_num_threads(1)
     n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
     if spec["algo"] != "sac":
@@ -302,20 +342,16 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     # SB3's logger to progress.csv: reward-model accuracy and true-reward correlation, diffusion fidelity, losses
     model.set_logger(configure(str(folder), ["csv"]))
-    (folder / "settings.json").write_text(
-        json.dumps(
-            {
-                **spec,
-                "n_timesteps": n_timesteps,
-                "kwargs": kwargs,
-                "defaults": algorithm_defaults(spec["algo"]),
-                "version": provenance(),
-                "system": system_info(),
-            },
-            indent=2,
-            default=str,
-        )
-    )
+    settings = {
+        **spec,
+        "n_timesteps": n_timesteps,
+        "kwargs": kwargs,
+        "defaults": algorithm_defaults(spec["algo"]),
+        "version": provenance(),
+        "time": {"started": started, "finished": None},
+        "system": system_info(),
+    }
+    (folder / "settings.json").write_text(json.dumps(settings, indent=2, default=str))
     evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
                               log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
     start = time.time()
@@ -334,6 +370,8 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     if getattr(model, "asynchronous_feedback", False):
         result["steps_awaiting_feedback"] = model.steps_awaiting_feedback
     (folder / "result.json").write_text(json.dumps(result, indent=2))
+    settings["time"]["finished"] = utc_now()  # the run's end, beside its start
+    (folder / "settings.json").write_text(json.dumps(settings, indent=2, default=str))
 
 
 def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:

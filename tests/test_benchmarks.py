@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_pride.pride.recipes import RENAMED_SETTINGS
+from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
 
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
@@ -388,22 +388,60 @@ def test_dotted_overrides_merge_into_the_yaml_entrys_nested_dict(run):
         run.parse_overrides(["generator_kwargs.=3"])
 
 
+def git_output(*argv: str) -> str:
+    """``git argv`` in this checkout (the test is skipped outside one: an installed copy)."""
+    import subprocess
+
+    try:
+        return subprocess.run(["git", *argv], cwd=ROOT, capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout: the code's provenance needs git")
+
+
 @pytest.mark.slow
-def test_a_run_records_the_package_version_the_commit_and_the_libraries(run, tmp_path):
-    """settings.json: the sb3_pride version, the git commit and whether the tree was dirty, library versions, and the
-    algorithm's defaults beside the arguments given."""
+def test_a_run_records_the_package_version_the_code_the_times_and_the_libraries(run, tmp_path):
+    """settings.json: the sb3_pride version (one source: __version__, in both blocks), the git commit and whether the
+    tree was dirty, the tree hash of sb3_pride/ and whether the package itself was dirty, the start and end in UTC,
+    the CPU and the library versions, and the algorithm's defaults beside the arguments given."""
+    from datetime import datetime, timedelta, timezone
+
     import sb3_pride
 
     spec = dict(algo="sac", task="walker-walk", seed=0, feedback=None, ratio=None, tier="cpu", eval_freq=200,
                 eval_episodes=1, timesteps=200, tag="", overrides={"policy_kwargs": {"net_arch": [32, 32]}})  # fmt: skip
+    before = datetime.now(timezone.utc).replace(microsecond=0)
     run.worker(spec, tmp_path / "run")
+    after = datetime.now(timezone.utc)
     settings = json.loads((tmp_path / "run" / "settings.json").read_text())
-    assert settings["version"]["sb3_pride"] == sb3_pride.__version__  # the code that ran, not stale install metadata
-    assert len(settings["version"]["commit"]) == 40 and isinstance(settings["version"]["dirty"], bool)
-    assert {"Stable-Baselines3", "PyTorch", "Gymnasium", "Numpy", "mujoco", "dm-control", "CPU"} <= set(settings["system"])
+    version = settings["version"]
+    assert version["sb3_pride"] == sb3_pride.__version__  # the code that ran, not stale install metadata
+    assert settings["system"]["sb3_pride"] == sb3_pride.__version__  # the same source in both blocks
+    assert version["sb3_pride_path"] == str(Path(sb3_pride.__file__).resolve().parent)
+    assert version["commit"] == git_output("-C", version["sb3_pride_path"], "rev-parse", "HEAD")
+    assert isinstance(version["dirty"], bool) and isinstance(version["code_dirty"], bool)
+    assert version["code_tree"] == git_output("-C", version["sb3_pride_path"], "rev-parse", "HEAD:./")
+    started, finished = (datetime.fromisoformat(settings["time"][key]) for key in ("started", "finished"))
+    assert started.utcoffset() == finished.utcoffset() == timedelta(0)  # UTC
+    assert before <= started <= finished <= after
+    assert {"Stable-Baselines3", "PyTorch", "Gymnasium", "Numpy", "mujoco", "dm-control", "metaworld", "CPU"} <= set(
+        settings["system"]
+    )
+    assert settings["system"]["CPU"]
     assert settings["kwargs"]["policy_kwargs"]["net_arch"] == [32, 32]
     assert settings["defaults"]["learning_rate"] == 3e-4 and settings["defaults"]["buffer_size"] == 1_000_000  # SAC's
     assert json.loads((tmp_path / "run" / "result.json").read_text())["final_return"] is not None
+
+
+def test_a_run_that_recorded_only_its_commit_gets_the_package_tree_of_that_commit(page):
+    """Older runs record a commit and a whole-checkout dirty flag: their code is sb3_pride/'s tree at that commit,
+    dirty where the checkout was; a run with no commit, or one this checkout lacks, is unrecorded."""
+    head, tree = git_output("rev-parse", "HEAD"), git_output("rev-parse", "HEAD:sb3_pride")
+    assert page.code_of({"version": {"commit": head, "dirty": False}}) == tree[: page.SHORT]
+    assert page.code_of({"version": {"commit": head, "dirty": True}}) == tree[: page.SHORT] + "+dirty"
+    recorded = {"commit": "0" * 40, "dirty": True, "code_tree": "abcdef0123" + "0" * 30, "code_dirty": False}
+    assert page.code_of({"version": recorded}) == "abcdef0"  # the run's own record wins
+    assert page.code_of({"version": {"commit": "f" * 40, "dirty": False}}) == page.COMMIT_NOT_HERE
+    assert page.code_of({}) is None and page.code_of({"version": {"commit": None, "dirty": None}}) is None
 
 
 def test_speed_takes_a_variant_label(monkeypatch):
@@ -461,3 +499,59 @@ def test_the_readme_summary_needs_its_markers(page):
     assert page.replace_block("a\n<!-- results:start -->\nold\n<!-- results:end -->\nb\n", "new\n", "x") == (
         "a\n<!-- results:start -->\nnew\n<!-- results:end -->\nb\n"
     )
+
+
+def write_coded_run(folder: Path, algo: str, seed: int, primary: float, code: str | None) -> None:
+    """A finished walker-walk run at 400 queries (PRIDE at u = 0.5) that ran on the sb3_pride/ tree ``code`` * 40
+    (``"a+dirty"``: tree a…a with changes of its own; ``None``: a run that recorded no commit)."""
+    name = f"{algo}_walker-walk_s{seed}_fb400{'_u0.5' if algo == 'pride' else ''}"
+    (folder / name).mkdir(parents=True)
+    version = {"commit": None, "dirty": None}
+    if code is not None:
+        tree, dirty = code.split("+")[0], code.endswith("+dirty")
+        version = {"commit": "1" * 40, "dirty": dirty, "code_tree": tree * 40, "code_dirty": dirty}
+    settings = {"algo": algo, "task": "walker-walk", "seed": seed, "feedback": 400, "ratio": 0.5, "tag": "",
+                "version": version}  # fmt: skip
+    (folder / name / "settings.json").write_text(json.dumps(settings))
+    evaluations = "".join(f"{step},{primary},\n" for step in (5000, 10000, 15000))
+    (folder / name / "curve.csv").write_text("step,true_return,success\n" + evaluations)
+    (folder / name / "result.json").write_text(json.dumps({"final_return": primary}))
+
+
+@pytest.mark.parametrize(
+    "pebble_codes, pride_codes, differs",
+    [
+        (["a", "a"], ["a", "a"], False),  # one code: the comparison stands
+        (["a", "a"], ["b", "b"], True),  # the arms ran on different code
+        (["a", "a"], ["a", "b"], True),  # one arm's seeds on two codes
+        (["a", None], ["a", "a"], True),  # a run that recorded no code
+        (["a+dirty", "a+dirty"], ["a+dirty", "a+dirty"], True),  # the package had uncommitted changes: code unknown
+    ],
+)
+def test_a_comparison_whose_arms_ran_on_different_code_is_flagged(page, tmp_path, pebble_codes, pride_codes, differs):
+    """P against the PEBBLE reference carries code_differs, and the pages mark it, unless every run of both arms ran on
+    one recorded sb3_pride/ tree; each row lists its runs' code."""
+    path = write_grid(tmp_path, "comparisons: [[pride, pebble]]\nruns:\n  - {configurations: [pebble, pride], "
+                                "tasks: [walker-walk], seeds: 0-1, feedback: [400], ratios: [0.5]}\n")  # fmt: skip
+    for seed, (pebble_code, pride_code) in enumerate(zip(pebble_codes, pride_codes, strict=True)):
+        write_coded_run(tmp_path / "runs", "pebble", seed, 300.0 + seed, pebble_code)
+        write_coded_run(tmp_path / "runs", "pride", seed, 320.0 + seed, pride_code)
+    data = page.recount([path], tmp_path / "runs")
+    pebble, pride = data["tasks"]["walker-walk"]
+    assert pebble["code"] == [None if code is None else code[0] * page.SHORT + code[1:] for code in pebble_codes]
+    assert pride["against_pebble"]["code_differs"] is differs
+    tables = page.render_tables(data)
+    assert (page.CODE_NOTE in tables) is differs
+    pride_line = next(line for line in tables.splitlines() if line.startswith("| PRIDE"))
+    assert pride_line.count(page.CODE_MARK) == int(differs)
+    assert ("aaaaaaa ×1, unrecorded ×1 |" in tables) is (None in pebble_codes)
+
+
+def test_every_run_folder_is_counted_by_a_row_or_archived(page, tmp_path):
+    """Each run in benchmarks/results/runs/ is counted in a row of a grid file (or was moved to the archive with a
+    line saying why); a stray folder beside a grid's runs is listed."""
+    assert [folder.name for folder in page.uncounted_runs(sorted(page.GRIDS.glob("*.yml")))] == []
+    path = write_grid(tmp_path, "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: [0], feedback: [400]}\n")
+    write_coded_run(tmp_path / "runs", "pebble", 0, 300.0, "a")
+    write_coded_run(tmp_path / "runs", "pebble", 1, 300.0, "a")  # seed 1: in no block of the grid
+    assert [folder.name for folder in page.uncounted_runs([path], tmp_path / "runs")] == ["pebble_walker-walk_s1_fb400"]
