@@ -1,15 +1,16 @@
-"""WebTeacher: the HTTP boundary (one person, several annotators with tokens, known answers), and people's keys in
-real headless Chromium during a PEBBLE run."""
+"""WebTeacher through its public parts, without a socket: the HTTP boundary through the Flask app's test client (one
+person, several annotators with tokens, known answers, what other sites and malformed bodies may send), the state
+store, the quality checks and the settings. Real sockets: test_web_server.py; real browsers: test_web_browser.py."""
 
+import io
 import json
+import logging
 import math
-import os
 import pickle
+import re
 import socket
 import threading
 import time
-import urllib.error
-import urllib.request
 from pathlib import Path
 
 import numpy as np
@@ -20,31 +21,38 @@ from sb3_pride import PEBBLE
 from sb3_pride.common.journal import PreferenceJournal, query_id
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.teachers import FeedbackContext
-from sb3_pride.human.web import GENERIC_INSTRUCTIONS, WebTeacher, _Known, _Query, _Session, default_instructions
+from sb3_pride.human import KnownPair, Question, Session, WebTeacher
+from sb3_pride.human.app import MAX_BODY
+from sb3_pride.human.web import GENERIC_INSTRUCTIONS, default_instructions
 
 pytest.importorskip("flask")
-CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 
 
-def request(url: str, body: dict | bytes | None = None, headers: dict | None = None) -> tuple[int, dict, bytes]:
+def token(teacher: WebTeacher, name: str) -> str:
+    return teacher.links[name].split("token=")[1]
+
+
+def request(teacher: WebTeacher, path: str, body: dict | bytes | None = None, headers: dict | None = None) -> tuple:
+    """(status, headers, body) of a GET (no ``body``) or a JSON POST to the teacher's app."""
     data = body if isinstance(body, bytes) or body is None else json.dumps(body).encode()
-    req = urllib.request.Request(url, data=data, headers={"Content-Type": "application/json", **(headers or {})})
-    try:
-        with urllib.request.urlopen(req, timeout=10) as response:
-            return response.status, dict(response.headers), response.read()
-    except urllib.error.HTTPError as error:
-        return error.code, dict(error.headers), error.read()
+    response = teacher.server.app.test_client().open(
+        path,
+        method="GET" if data is None else "POST",
+        data=data,
+        headers={"Content-Type": "application/json", **(headers or {})},
+    )
+    return response.status_code, dict(response.headers), response.get_data()
 
 
 class Page:
     """An annotator's page, through the HTTP API (what the browser sends)."""
 
     def __init__(self, teacher: WebTeacher, name: str | None = None):
-        self.url, self.name = teacher.url, name
-        self.headers = {} if name is None else {"X-Annotator-Token": teacher.links[name].split("token=")[1]}
+        self.teacher, self.name = teacher, name
+        self.headers = {} if name is None else {"X-Annotator-Token": token(teacher, name)}
 
     def state(self) -> dict:
-        status, _, body = request(self.url + "api/state", headers=self.headers)
+        status, _, body = request(self.teacher, "/api/state", headers=self.headers)
         assert status == 200, body
         return json.loads(body)
 
@@ -53,33 +61,58 @@ class Page:
         return None if query is None else query["id"]
 
     def answer(self, question: str | None, label) -> int:
-        return request(self.url + "api/answer", {"id": question, "label": label}, self.headers)[0]
+        return request(self.teacher, "/api/answer", {"id": question, "label": label}, self.headers)[0]
 
     def undo(self) -> int:
-        return request(self.url + "api/undo", {}, self.headers)[0]
+        return request(self.teacher, "/api/undo", {}, self.headers)[0]
 
 
 class Run:
     """What a model gives an interactive teacher: its preference journal and its logger."""
 
-    def __init__(self, path: Path):
+    def __init__(self, path: Path, record_delay: float = 0.0):
         self.journal = PreferenceJournal(path)
         self.logged: dict[str, float] = {}
+        self.record_delay = record_delay
+
+    def record(self, entries: list) -> None:
+        time.sleep(self.record_delay)  # a slow disk
+        self.journal.append(entries)
 
     def context(self, session: int = 1) -> FeedbackContext:
-        return FeedbackContext(session, 0, 100, self.journal.append, self.journal.append_undo, self.logged.__setitem__)
+        return FeedbackContext(session, 0, 100, self.record, self.journal.append_undo, self.logged.__setitem__)
+
+    def labels(self) -> list[float]:
+        return [entry.label for entry in self.journal.read()]
 
 
 class FakeRenderer:
     """Black frames: the HTTP tests need clips, not pictures."""
 
-    env_id, fps = "sb3_pride/walker-walk-v0", 10.0
+    env_id, fps, layout, state_size = "sb3_pride/walker-walk-v0", 10.0, (), 4
 
     def render(self, states: np.ndarray) -> np.ndarray:
         return np.zeros((len(states), 16, 16, 3), np.uint8)
 
     def close(self) -> None:
         pass
+
+
+class FakeEnv:
+    """What ``attach()`` asks of a VecEnv of a re-renderable task."""
+
+    def get_attr(self, name: str) -> list:
+        return [FakeRenderer.env_id]
+
+    def env_method(self, name: str, *args) -> list:
+        return [FakeRenderer.state_size]
+
+
+class FakeBuffer:
+    render_states, record_render_states = None, False
+
+    def size(self) -> int:
+        return 0
 
 
 def make_pairs(n: int, seed: int = 0, k: int = 4) -> SegmentPairs:
@@ -95,21 +128,35 @@ def true_answer(pairs: SegmentPairs, inputs: np.ndarray) -> float:
     return float(returns[1] > returns[0])
 
 
+def no_mp4(monkeypatch) -> None:
+    """Clips of three bytes: the tests that answer many questions need files, not video."""
+    monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
+
+
 @pytest.fixture
 def serve(tmp_path):
-    """Makes WebTeachers that serve and render black clips without an env (closed at the end)."""
+    """Makes WebTeachers that render black clips without an env, as if attached (no port: pages use the app)."""
     teachers = []
 
     def make(**kwargs) -> WebTeacher:
         teacher = WebTeacher(port=0, clip_dir=tmp_path / "clips", **kwargs)
-        teacher._attached, teacher._renderer = True, FakeRenderer()
-        teacher._start_server()
+        teacher.clips.renderer = FakeRenderer()
         teachers.append(teacher)
         return teacher
 
     yield make
     for teacher in teachers:
         teacher.close()
+
+
+def wait(condition, timeout: float = 60.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.05)
+    raise AssertionError("timed out waiting")
 
 
 def ask_in_thread(teacher: WebTeacher, pairs: SegmentPairs, context: FeedbackContext) -> tuple[threading.Thread, dict]:
@@ -124,7 +171,7 @@ def ask_in_thread(teacher: WebTeacher, pairs: SegmentPairs, context: FeedbackCon
 
     thread = threading.Thread(target=ask, daemon=True)
     thread.start()
-    _wait(lambda: teacher._session is not None and all(query.ready for query in teacher._session.queries), timeout=30)
+    wait(lambda: (session := teacher.store.session) is not None and all(query.ready for query in session.queries), 30)
     return thread, result
 
 
@@ -134,22 +181,24 @@ def finish(thread: threading.Thread, result: dict) -> np.ndarray:
     return result["labels"]
 
 
+def find(teacher: WebTeacher, question_id: str) -> Question:
+    session = teacher.store.session
+    assert session is not None
+    question = session.find(question_id)
+    assert question is not None
+    return question
+
+
 # one person on this machine ------------------------------------------------------------------------------------------
 @pytest.fixture
-def open_session(tiny_kwargs, tmp_path):
-    """A WebTeacher serving one open session of two queries, answered into a real model's journal."""
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=tmp_path / "preferences.jsonl", **tiny_kwargs)
+def open_session(tmp_path):
+    """A WebTeacher with one open session of two queries, "a" and "b", answered into a run's journal."""
     teacher = WebTeacher(port=0, clip_dir=tmp_path / "clips")
     (tmp_path / "clips").mkdir()
     (tmp_path / "clips" / "a-left.mp4").write_bytes(bytes(range(256)) * 40)
-    teacher._attached = True
-    teacher._start_server()
-    inputs = np.zeros((2, tiny_kwargs["segment_length"], 4), np.float32)
-    clips = {name: (f"/clips/{name}-left.mp4", f"/clips/{name}-right.mp4") for name in "ab"}
-    queries = [_Query(name, inputs + i, clips[name], ready=True) for i, name in enumerate("ab")]
-    context = FeedbackContext(1, 0, 60, model.record_answers, model.retract_answer)
-    teacher._session = _Session(1, queries, 0, context)
-    teacher.model = model  # the journal's owner, for the assertions
+    queries = [Question(name, np.zeros((2, 10, 4), np.float32) + i, ready=True) for i, name in enumerate("ab")]
+    teacher.run = Run(tmp_path / "preferences.jsonl")  # the journal, for the assertions
+    teacher.store.begin(Session(1, queries, 0, teacher.run.context()))
     yield teacher
     teacher.close()
 
@@ -159,39 +208,126 @@ def test_bad_posts_are_refused_and_record_nothing(open_session):
     assert teacher.state()["query"]["id"] == "a"  # the page shows "a"
     for body in ({"id": "zzz", "label": 1}, {"id": "a", "label": 0.7}, {"id": "a", "label": "left"},
                  {"id": "a", "label": True}, {"id": 3, "label": 1}, {"id": "a"}, {"label": 1}):  # fmt: skip
-        status, _, reply = request(teacher.url + "api/answer", body)
+        status, _, reply = request(teacher, "/api/answer", body)
         assert status in (400, 404) and json.loads(reply)["error"], body
-    status, _, _ = request(teacher.url + "api/answer", b"not json")
-    assert status == 400
-    status, _, _ = request(teacher.url + "api/undo", {})
-    assert status == 409  # nothing to undo yet
-    assert teacher.state()["answered"] == 0 and teacher.model.journal_history() == []
+    assert request(teacher, "/api/answer", b"not json")[0] == 400
+    assert request(teacher, "/api/undo", {})[0] == 409  # nothing to undo yet
+    assert teacher.state()["answered"] == 0 and teacher.run.labels() == []
 
-    status, _, _ = request(teacher.url + "api/answer", {"id": "a", "label": 0.5})
-    assert status == 200 and teacher.state()["answered"] == 1
-    status, _, _ = request(teacher.url + "api/answer", {"id": "a", "label": 1})
-    assert status == 409  # answered already
-    assert [entry.label for entry in PreferenceJournal(teacher.model.preference_journal).read()] == [0.5]
+    assert request(teacher, "/api/answer", {"id": "a", "label": 0.5})[0] == 200 and teacher.state()["answered"] == 1
+    assert request(teacher, "/api/answer", {"id": "a", "label": 1})[0] == 409  # answered already
+    assert teacher.run.labels() == [0.5]
+
+
+def test_bodies_too_large_or_too_deep_are_refused_and_record_nothing(open_session, caplog):
+    """A body over 64 KiB, announced or streamed in chunks (werkzeug's server terminates a chunked body itself), and
+    JSON nested past the parser's depth: refused as the docs say, nothing journaled, no traceback on the console."""
+    teacher = open_session
+    teacher.state()  # the page shows "a"
+    padded = b'{"id": "a", "label": 1}' + b" " * MAX_BODY
+    client = teacher.server.app.test_client()
+    with caplog.at_level(logging.INFO):
+        assert request(teacher, "/api/answer", padded)[0] == 413
+        chunked = client.post(
+            "/api/answer", input_stream=io.BytesIO(padded), content_type="application/json",
+            headers={"Transfer-Encoding": "chunked"}, environ_overrides={"wsgi.input_terminated": True},
+        )  # fmt: skip
+        assert chunked.status_code == 413 and chunked.json["error"]
+        for depth in (1000, 5000, MAX_BODY):
+            status, _, reply = request(teacher, "/api/answer", b"[" * depth)
+            assert status == 400 and "JSON" in json.loads(reply)["error"], depth
+    assert teacher.run.labels() == [] and teacher.state()["answered"] == 0
+    assert not [record for record in caplog.records if record.levelno >= logging.ERROR]
+    whole = b'{"id": "a", "label": 1}'.ljust(MAX_BODY)  # the limit itself is allowed, streamed or not
+    streamed = client.post(
+        "/api/answer", input_stream=io.BytesIO(whole), content_type="application/json",
+        headers={"Transfer-Encoding": "chunked"}, environ_overrides={"wsgi.input_terminated": True},
+    )  # fmt: skip
+    assert streamed.status_code == 200 and teacher.run.labels() == [1]
+
+
+def test_minus_zero_is_journaled_as_zero(open_session):
+    teacher = open_session
+    teacher.state()  # the page shows "a", then "b"
+    assert request(teacher, "/api/answer", b'{"id": "a", "label": -0.0}')[0] == 200
+    assert teacher.answer("b", -0.0) == (200, "recorded")
+    assert teacher.run.labels() == [0, 0] and all(math.copysign(1, label) == 1 for label in teacher.run.labels())
+    assert "-0.0" not in teacher.run.journal.path.read_text()
 
 
 def test_clips_are_served_with_range_requests(open_session):
     teacher = open_session
-    status, headers, body = request(teacher.url + "clips/a-left.mp4", headers={"Range": "bytes=100-199"})
+    teacher.state()
+    status, headers, body = request(teacher, "/clips/a-left.mp4", headers={"Range": "bytes=100-199"})
     assert status == 206 and headers["Content-Range"] == "bytes 100-199/10240" and body == (bytes(range(256)) * 40)[100:200]
     assert headers["Content-Type"] == "video/mp4" and headers.get("Accept-Ranges") == "bytes"
-    status, _, _ = request(teacher.url + "clips/missing.mp4")
-    assert status == 404
+    assert request(teacher, "/clips/missing.mp4")[0] == 404
+    (teacher.clips.folder() / "a-left.mp4.part").write_bytes(b"half a clip")  # a clip being written is not served
+    assert request(teacher, "/clips/a-left.mp4.part")[0] == 404
 
 
-def test_a_port_in_use_is_named():
-    with socket.socket() as taken:
-        taken.bind(("127.0.0.1", 0))
-        taken.listen()
-        port = taken.getsockname()[1]
-        with pytest.raises(ValueError, match=f"port {port} on 127.0.0.1 is in use"):
-            WebTeacher(port=port)._start_server()
+def test_a_timeout_skips_the_rest(open_session, capsys):
+    teacher = open_session
+    session = teacher.store.session
+    teacher.state()
+    assert teacher.answer("a", 1) == (200, "recorded")
+    teacher.store.wait(timeout=0.3, reminder_interval=60, url=teacher.url)
+    assert teacher.store.session is None
+    assert session.queries[0].label() == 1 and np.isnan(session.queries[1].label())
+    assert len(teacher.run.labels()) == 2  # the skip is journaled too: the counts stay in step
+    assert "timeout, 1 queries skipped" in capsys.readouterr().out
 
 
+def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session, capsys):
+    teacher = open_session
+    teacher.store.wait(timeout=0.45, reminder_interval=0.1, url=teacher.url)  # nobody answers: the page was never opened
+    reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
+    assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
+
+
+def test_only_the_question_shown_is_answered_and_nothing_reaches_a_closed_session(open_session):
+    teacher = open_session
+    assert teacher.state()["query"]["id"] == "a"
+    status, _, reply = request(teacher, "/api/answer", {"id": "b", "label": 1})  # "a" is shown, "b" preloaded
+    assert status == 403 and "not the one shown to you" in json.loads(reply)["error"]
+    assert teacher.answer("a", 0)[0] == 200
+    assert teacher.answer("b", 1)[0] == 200
+    session = teacher.store.session
+    teacher.store.wait(timeout=None, reminder_interval=60, url=teacher.url)  # all answered: the session closes
+    assert [q.label() for q in session.queries] == [0, 1] and teacher.store.session is None
+    assert request(teacher, "/api/undo", {})[0] == 409  # a late Backspace
+    assert teacher.answer("b", 0)[0] == 409
+    assert teacher.run.labels() == [0, 1]
+
+
+def test_other_sites_cannot_post_or_rebind(open_session):
+    """A form of another site (no JSON), a page reached under another name (DNS rebinding): refused, nothing recorded."""
+    teacher = open_session
+    assert teacher.state()["query"]["id"] == "a"
+    form = {"Content-Type": "application/x-www-form-urlencoded"}
+    assert request(teacher, "/api/answer", b"id=a&label=1", form)[0] == 415
+    assert request(teacher, "/api/answer", b'{"id": "a", "label": 1}', {"Content-Type": "text/plain"})[0] == 415
+    assert request(teacher, "/api/answer", {"id": "a", "label": 1})[0] == 200
+    assert request(teacher, "/api/undo", b"", form)[0] == 415
+    assert request(teacher, "/api/undo", b"")[0] == 400  # JSON, but no object
+    rebound = {"Host": "evil.example:8000"}
+    for path, body in (("/api/undo", {}), ("/api/state", None), ("/clips/a-left.mp4", None), ("/", None)):
+        assert request(teacher, path, body, rebound)[0] == 403, path
+    assert teacher.run.labels() == [1]  # the one JSON answer, not undone
+    for host in ("localhost:8000", "[::1]:8000", "127.0.0.1"):
+        assert request(teacher, "/api/state", None, {"Host": host})[0] == 200, host
+
+
+def test_an_error_in_a_route_is_a_json_500(open_session, monkeypatch):
+    def broken(annotator=None, instructions=""):
+        raise RuntimeError("broken")
+
+    monkeypatch.setattr(open_session.store, "page_state", broken)
+    status, _, body = request(open_session, "/api/state")
+    assert status == 500 and "RuntimeError: broken" in json.loads(body)["error"]
+
+
+# settings ------------------------------------------------------------------------------------------------------------
 def test_bad_settings_name_the_parameter():
     for kwargs, name in (
         ({"port": 70000}, "port"),
@@ -210,6 +346,9 @@ def test_bad_settings_name_the_parameter():
         ({"known_answer_margin": 0}, "known_answer_margin"),
         ({"instructions": 3}, "instructions"),
         ({"seed": 1.5}, "seed"),
+        ({"read_timeout": 0}, "read_timeout"),
+        ({"hand_over_after": -1}, "hand_over_after"),
+        ({"reminder_interval": math.inf}, "reminder_interval"),
     ):
         with pytest.raises(ValueError, match=name):
             WebTeacher(**kwargs)
@@ -217,76 +356,66 @@ def test_bad_settings_name_the_parameter():
         assert WebTeacher(host=host).links == {}
 
 
-def test_a_timeout_skips_the_rest(open_session, capsys):
-    teacher = open_session
-    teacher.timeout, session = 0.3, teacher._session
-    teacher.state()
-    assert teacher.answer("a", 1) == (200, "recorded")
-    teacher._wait_for_answers()
-    assert teacher._session is None
-    assert session.queries[0].label() == 1 and np.isnan(session.queries[1].label())
-    assert len(teacher.model.journal_history()) == 2  # the skip is journaled too: the counts stay in step
-    assert "timeout, 1 queries skipped" in capsys.readouterr().out
+def test_a_saved_teacher_keeps_its_settings_and_makes_new_tokens():
+    teacher = WebTeacher(port=0, annotators=["ana", "ben"], read_timeout=5, hand_over_after=60)
+    assert set(teacher.links) == {"ana", "ben"} and len(set(teacher.links.values())) == 2
+    assert all(link.startswith(teacher.url + "?token=") for link in teacher.links.values())
+    loaded = pickle.loads(pickle.dumps(teacher))
+    assert loaded.annotators == ["ana", "ben"] and not loaded.server.running
+    assert (loaded.read_timeout, loaded.hand_over_after) == (5, 60)
+    assert not set(loaded.links.values()) & set(teacher.links.values())  # tokens are never saved
+    older = WebTeacher.__new__(WebTeacher)  # as pickle makes a teacher saved before several annotators existed
+    older.__setstate__(dict(port=0, host="127.0.0.1", timeout=None, width=320, height=240, clip_dir=None,
+                            reminder_interval=60.0, camera=None))  # fmt: skip
+    assert older.annotators is None and older.known_answer_rate == 0 and older.links == {}
+    assert older.read_timeout > 0 and older.hand_over_after > 0  # the settings it did not know get their defaults
 
 
-def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session, capsys):
-    teacher = open_session
-    teacher.reminder_interval, teacher.timeout = 0.1, 0.45
-    teacher._wait_for_answers()  # nobody answers: the page was never opened
-    reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
-    assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
+def test_tokens_are_required_beyond_localhost_whenever_the_server_starts():
+    teacher = WebTeacher(port=0)
+    teacher.host = "0.0.0.0"  # set after construction
+    teacher.clips.renderer = FakeRenderer()
+    with pytest.raises(ValueError, match="annotators"):
+        teacher.attach(FakeEnv(), FakeBuffer())
+    assert not teacher.server.running
+    loaded = pickle.loads(pickle.dumps(WebTeacher(port=0)))
+    loaded.__setstate__({**loaded.__getstate__(), "host": "0.0.0.0"})  # as a teacher saved with another host
+    loaded.clips.renderer = FakeRenderer()
+    with pytest.raises(ValueError, match="annotators"):
+        loaded.attach(FakeEnv(), FakeBuffer())
 
 
-def test_only_the_question_shown_is_answered_and_nothing_reaches_a_closed_session(open_session):
-    teacher = open_session
-    assert teacher.state()["query"]["id"] == "a"
-    status, _, reply = request(teacher.url + "api/answer", {"id": "b", "label": 1})  # "a" is shown, "b" preloaded
-    assert status == 403 and "not the one shown to you" in json.loads(reply)["error"]
-    assert teacher.answer("a", 0)[0] == 200
-    assert teacher.answer("b", 1)[0] == 200
-    session = teacher._session
-    teacher._wait_for_answers()  # all answered: the session closes
-    assert [q.label() for q in session.queries] == [0, 1] and teacher._session is None
-    status, _, _ = request(teacher.url + "api/undo", {})  # a late Backspace
-    assert status == 409
-    assert teacher.answer("b", 0)[0] == 409
-    assert [entry.label for entry in teacher.model.journal_history()] == [0, 1]
+def test_a_port_in_use_is_named():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        teacher = WebTeacher(port=port)
+        teacher.clips.renderer = FakeRenderer()
+        with pytest.raises(ValueError, match=f"port {port} on 127.0.0.1 is in use"):
+            teacher.attach(FakeEnv(), FakeBuffer())
 
 
-def test_clips_being_written_are_not_served(open_session):
-    (open_session._clips_folder() / "a-left.mp4.part").write_bytes(b"half a clip")
-    status, _, _ = request(open_session.url + "clips/a-left.mp4.part")
-    assert status == 404
+def test_instructions_default_to_the_task(serve):
+    assert "walker" in default_instructions("sb3_pride/walker-walk-v0")
+    assert "cheetah" in default_instructions("sb3_pride/cheetah-run-v0")
+    assert "button" in default_instructions("sb3_pride/button-press-v3")
+    assert "door" in default_instructions("sb3_pride/door-open-v3")
+    assert default_instructions("sb3_pride/unknown-task-v0") == default_instructions(None) == GENERIC_INSTRUCTIONS
+    teacher = serve()
+    assert Page(teacher).state()["instructions"] == GENERIC_INSTRUCTIONS  # no env seen yet
+    teacher.env_id = "sb3_pride/walker-walk-v0"  # as attach() sees it
+    assert Page(teacher).state()["instructions"] == default_instructions("sb3_pride/walker-walk-v0")
+    teacher.instructions = "Prefer <b>faster</b> walkers."
+    assert Page(teacher).state()["instructions"] == "Prefer <b>faster</b> walkers."
 
 
 # several annotators --------------------------------------------------------------------------------------------------
-def test_links_carry_secret_tokens_printed_once_and_a_loaded_teacher_makes_new_ones(serve, capsys):
-    teacher = serve(annotators=["ana", "ben"])
-    out = capsys.readouterr().out
-    assert set(teacher.links) == {"ana", "ben"} and len(set(teacher.links.values())) == 2
-    assert all(link.startswith(teacher.url + "?token=") and link in out for link in teacher.links.values())
-    teacher._start_server()  # attached again (a new env): the same server, the links are not printed again
-    assert capsys.readouterr().out == ""
-    loaded = pickle.loads(pickle.dumps(teacher))
-    assert loaded.annotators == ["ana", "ben"] and loaded._server is None
-    assert not set(loaded._tokens.values()) & set(teacher._tokens.values())  # tokens are never saved
-    older = WebTeacher.__new__(WebTeacher)  # as pickle makes a teacher saved before several annotators existed
-    older.__setstate__(_settings_of_an_old_teacher())
-    assert older.annotators is None and older.known_answer_rate == 0 and older.links == {}
-
-
-def _settings_of_an_old_teacher() -> dict:
-    """What a model saved before several annotators existed holds of its WebTeacher."""
-    return dict(port=0, host="127.0.0.1", timeout=None, width=320, height=240, clip_dir=None, reminder_interval=60.0,
-                camera=None)  # fmt: skip
-
-
 def test_serving_beyond_localhost_with_annotators(serve):
     teacher = serve(annotators=["ana"], host="0.0.0.0")
-    assert teacher.url == f"http://{socket.gethostname()}:{teacher.port}/"
-    status, _, _ = request(f"http://127.0.0.1:{teacher.port}/api/state")
-    assert status == 401
-    status, _, body = request(f"http://127.0.0.1:{teacher.port}/api/state?token=" + teacher.links["ana"].split("token=")[1])
+    assert teacher.url == f"http://{socket.gethostname()}:0/"
+    assert request(teacher, "/api/state", headers={"Host": "annotators.example"})[0] == 401
+    status, _, body = request(teacher, "/api/state?token=" + token(teacher, "ana"), headers={"Host": "annotators.example"})
     assert status == 200 and json.loads(body)["you"] == "ana"
 
 
@@ -303,26 +432,26 @@ def test_annotators_refusals_are_http_errors_that_record_nothing(serve, tmp_path
         assert ana.shown() == first_of_ana and ben.shown() == first_of_ben
 
     # without a valid token: every API route and the clips
-    clip = teacher.url + ana.state()["query"]["left"].lstrip("/")
-    for url, body, headers in (
-        (teacher.url + "api/state", None, {}),
-        (teacher.url + "api/state", None, {"X-Annotator-Token": "guess"}),
-        (teacher.url + "api/state?token=", None, {}),
-        (teacher.url + "api/answer", {"id": first_of_ana, "label": 1}, {}),
-        (teacher.url + "api/undo", {}, {"X-Annotator-Token": "guess"}),
+    clip = ana.state()["query"]["left"]
+    for path, body, headers in (
+        ("/api/state", None, {}),
+        ("/api/state", None, {"X-Annotator-Token": "guess"}),
+        ("/api/state?token=", None, {}),
+        ("/api/answer", {"id": first_of_ana, "label": 1}, {}),
+        ("/api/undo", {}, {"X-Annotator-Token": "guess"}),
         (clip, None, {}),
     ):
-        status, _, reply = request(url, body, headers)
-        assert status == 401 and "token" in json.loads(reply)["error"], url
-    assert request(clip + "?token=" + ana.headers["X-Annotator-Token"])[0] == 200
-    status, _, page = request(teacher.url)  # the page itself holds nothing: it asks for the token
+        status, _, reply = request(teacher, path, body, headers)
+        assert status == 401 and "token" in json.loads(reply)["error"], path
+    assert request(teacher, clip + "?token=" + token(teacher, "ana"))[0] == 200
+    status, _, page = request(teacher, "/")  # the page itself holds nothing: it asks for the token
     assert status == 200 and b"X-Annotator-Token" in page
     # malformed, a label outside {0, 0.5, 1, null}, another's query, an unknown one
     for body in (b"{", b"[1, 2]", {"label": 1}, {"id": first_of_ana}):
-        assert request(teacher.url + "api/answer", body, ana.headers)[0] == 400, body
-    status, _, reply = request(teacher.url + "api/answer", {"id": first_of_ana, "label": 1, "pad": "x" * 70_000}, ana.headers)
+        assert request(teacher, "/api/answer", body, ana.headers)[0] == 400, body
+    status, _, reply = request(teacher, "/api/answer", {"id": first_of_ana, "label": 1, "pad": "x" * 70_000}, ana.headers)
     assert status == 413 and json.loads(reply)["error"]
-    for label in (0.7, "left", True, -1, 2):
+    for label in (0.7, "left", True, -1, 2, float("nan")):
         assert ana.answer(first_of_ana, label) == 400, label
     assert ana.answer(first_of_ben, 1) == 403  # handed to ben, not to ana
     assert ana.answer("nonexistent", 1) == 404
@@ -330,7 +459,7 @@ def test_annotators_refusals_are_http_errors_that_record_nothing(serve, tmp_path
     nothing_recorded()
     # replays: the same answer again, and a query that has its answer
     assert ana.answer(first_of_ana, 1) == 200
-    answered = teacher._session.find(first_of_ana).pair
+    answered = find(teacher, first_of_ana).pair
     assert ana.answer(first_of_ana, 1) == 409 and ana.answer(first_of_ana, 0) == 409
     assert ben.answer(first_of_ana, 0) == 409
     assert len(run.journal.read()) == 1 and teacher.agreement()["ben"]["answers"] == 0
@@ -352,7 +481,7 @@ def test_two_answers_per_query_are_averaged_and_undo_takes_back_ones_own(serve, 
     run, pairs = Run(tmp_path / "preferences.jsonl"), make_pairs(3)
     thread, result = ask_in_thread(teacher, pairs, run.context())
     ana, ben = Page(teacher, "ana"), Page(teacher, "ben")
-    ids = [query.id for query in teacher._session.queries]
+    ids = [query.id for query in teacher.store.session.queries]
     assert ana.shown() == ids[0] and ben.shown() == ids[0]  # both answer the first query
     assert ana.answer(ids[0], 1) == 200 and ben.answer(ids[0], 0) == 200  # they disagree: μ = 0.5
     assert ana.answer(ids[1], 1) == 200
@@ -376,18 +505,36 @@ def test_two_answers_per_query_are_averaged_and_undo_takes_back_ones_own(serve, 
     assert json.loads((tmp_path / "report.json").read_text())["annotators"] == agreement
 
 
+def test_a_query_shown_too_long_goes_to_an_idle_annotator(serve, tmp_path):
+    """ben's page keeps polling but he never answers: after hand_over_after, ana, who has nothing left, is handed it."""
+    teacher = serve(annotators=["ana", "ben"], hand_over_after=0.3)
+    run = Run(tmp_path / "preferences.jsonl")
+    thread, result = ask_in_thread(teacher, make_pairs(1), run.context())
+    ana, ben = Page(teacher, "ana"), Page(teacher, "ben")
+    held = ben.shown()
+    assert held is not None and ana.shown() is None  # the only query is ben's
+    time.sleep(0.15)
+    assert ben.shown() == held and ana.shown() is None  # not yet
+    time.sleep(0.25)
+    assert ben.shown() == held  # still polling: his page is not quiet, only slow
+    assert ana.shown() == held and ben.shown() is None  # handed over
+    assert ben.answer(held, 0) == 403 and ana.answer(held, 1) == 200
+    np.testing.assert_array_equal(finish(thread, result), [1])
+    assert [(entry.annotator, entry.label) for entry in run.journal.read()] == [("ana", 1)]
+
+
 def test_a_careless_annotator_is_flagged_by_known_answers(serve, tmp_path, monkeypatch, capsys):
     """ana answers from the true reward, ben at random: the known-answer questions tell them apart."""
-    monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
+    no_mp4(monkeypatch)
     teacher = serve(annotators=["ana", "ben"], known_answer_rate=0.4, seed=0, report_path=tmp_path / "report.json")
     run, pairs = Run(tmp_path / "preferences.jsonl"), make_pairs(60)
     thread, result = ask_in_thread(teacher, pairs, run.context())
     pages, coin = [Page(teacher, "ana"), Page(teacher, "ben")], np.random.default_rng(1)
     while thread.is_alive():
         for page in pages:
-            shown = page.shown()
-            if shown is not None and teacher._session is not None:
-                careful = true_answer(pairs, teacher._session.find(shown).inputs)
+            shown, session = page.shown(), teacher.store.session
+            if shown is not None and session is not None:
+                careful = true_answer(pairs, session.find(shown).inputs)
                 assert page.answer(shown, careful if page.name == "ana" else float(coin.integers(2))) == 200
     labels = finish(thread, result)
     entries = run.journal.read()
@@ -405,18 +552,136 @@ def test_a_careless_annotator_is_flagged_by_known_answers(serve, tmp_path, monke
     assert "ben matched only" in capsys.readouterr().out
 
 
-def test_instructions_default_to_the_task(serve):
-    assert "walker" in default_instructions("sb3_pride/walker-walk-v0")
-    assert "cheetah" in default_instructions("sb3_pride/cheetah-run-v0")
-    assert "button" in default_instructions("sb3_pride/button-press-v3")
-    assert "door" in default_instructions("sb3_pride/door-open-v3")
-    assert default_instructions("sb3_pride/unknown-task-v0") == default_instructions(None) == GENERIC_INSTRUCTIONS
-    teacher = serve()
-    assert Page(teacher).state()["instructions"] == GENERIC_INSTRUCTIONS  # no env seen yet
-    teacher._env_id = "sb3_pride/walker-walk-v0"  # as attach() sees it
-    assert Page(teacher).state()["instructions"] == default_instructions("sb3_pride/walker-walk-v0")
-    teacher.instructions = "Prefer <b>faster</b> walkers."
-    assert Page(teacher).state()["instructions"] == "Prefer <b>faster</b> walkers."
+# known-answer questions ----------------------------------------------------------------------------------------------
+def answer_first_session(teacher: WebTeacher, run: Run, pairs: SegmentPairs) -> None:
+    """One person answers feedback session 1 from the true reward: its clear pairs become known answers."""
+    thread, result = ask_in_thread(teacher, pairs, run.context(1))
+    page = Page(teacher)
+    while (shown := page.shown()) is not None:
+        assert page.answer(shown, true_answer(pairs, find(teacher, shown).inputs)) == 200
+    finish(thread, result)
+    assert teacher.quality.known and teacher.agreement()["anonymous"]["known_answers"] == 0  # none shown in session 1
+
+
+def test_known_answer_questions_look_like_any_other_and_their_first_answer_counts(serve, tmp_path, monkeypatch):
+    """One person, true-reward known answers of feedback session 1 shown again in the next: nothing on the page moves
+    differently on them, their clips are served alike (the address's shape and every header), and an undo does not
+    change their score."""
+    no_mp4(monkeypatch)
+    teacher = serve(known_answer_rate=0.6, seed=0)
+    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
+    answer_first_session(teacher, run, make_pairs(8))
+    second = make_pairs(8, seed=1)
+    thread, result = ask_in_thread(teacher, second, run.context(2))
+    known_seen, served = 0, {True: [], False: []}
+    while (state := page.state())["query"] is not None:
+        shown = state["query"]["id"]
+        assert state["budget"] == {"max": 100, "asked": 8}  # fixed for the session
+        assert all(row[key] is None for row in state["team"] for key in ("known_answers", "known_answer_agreement"))
+        question = find(teacher, shown)
+        for url in (state["query"]["left"], state["query"]["right"]):
+            assert re.fullmatch(rf"/clips/{shown}-(left|right)\.mp4", url) and re.fullmatch(r"[0-9a-f]{12}", shown)
+            status, headers, _ = request(teacher, url)
+            assert status == 200 and not any(".mp4" in value for value in headers.values()), headers
+            served[question.known is not None].append(headers)
+        if question.known is None:
+            assert page.answer(shown, true_answer(second, question.inputs)) == 200
+        else:
+            known_seen += 1
+            assert page.answer(shown, 1 - question.known) == 200  # wrong first...
+            assert page.state()["answered"] == state["answered"] + 1
+            assert page.undo() == 200 and page.shown() == shown
+            assert page.answer(shown, question.known) == 200  # ...then right: the first answer is the one scored
+        after = page.state()
+        assert after["answered"] == state["answered"] + 1 or after["session"] is None
+    labels = finish(thread, result)
+    assert known_seen >= 1 and not np.isnan(labels).any()
+    for headers in served[True] + served[False]:  # the same headers, the same date, no ETag, no file name
+        assert set(headers) == set(served[False][0]) and "Content-Disposition" not in headers and "ETag" not in headers
+        assert headers["Last-Modified"] == served[False][0]["Last-Modified"]
+    stats = teacher.agreement()["anonymous"]
+    assert stats["known_answers"] == known_seen and stats["known_answer_agreement"] == 0
+    assert stats["answers"] == 16 + known_seen and len(run.journal.read()) == 16  # known ones are not journaled
+    between = page.state()["team"][0]
+    assert between["known_answers"] == known_seen and between["session"] == 0  # shown once the session is over
+
+
+def test_known_answers_take_as_long_as_journaled_ones(serve, tmp_path, monkeypatch):
+    """The journal's durable write takes time; a known-answer question's answer and undo, which journal nothing, wait
+    as long, so that response times do not tell them apart."""
+    no_mp4(monkeypatch)
+    teacher = serve(known_answer_rate=0.9, seed=0)
+    run, page = Run(tmp_path / "preferences.jsonl", record_delay=0.2), Page(teacher)
+    answer_first_session(teacher, run, make_pairs(4))
+    second = make_pairs(4, seed=1)
+    thread, result = ask_in_thread(teacher, second, run.context(2))
+    took: dict[bool, list[float]] = {True: [], False: []}
+    while (shown := page.shown()) is not None:
+        question = find(teacher, shown)
+        start = time.perf_counter()
+        label = question.known if question.known is not None else true_answer(second, question.inputs)
+        assert page.answer(shown, label) == 200
+        took[question.known is not None].append(time.perf_counter() - start)
+    finish(thread, result)
+    assert took[True] and took[False] and min(took[True]) >= 0.18, took
+
+
+def test_true_reward_known_answers_need_a_return_scale():
+    teacher = WebTeacher(port=0, known_answer_rate=0.5)
+    rewards = np.array([[1.0, 1.0], [1.0, 1.001], [0.0, 3.0], [2.0, 0.0]])[..., None].repeat(4, axis=-1)
+
+    def pairs(rewards: np.ndarray, return_scale: float) -> SegmentPairs:
+        return SegmentPairs(np.zeros((4, 2, 4, 3)), np.zeros((4, 2, 4, 1)), rewards, return_scale, np.zeros((4, 2, 4, 1)))
+
+    # return_scale ~ 0: the margin is measured in the spread of the pairs' returns instead, so 0.004 is not clear
+    assert teacher.quality.known_from_reward(pairs(rewards, 1e-12)) == [None, None, 1.0, 0.0]
+    assert teacher.quality.known_from_reward(pairs(rewards, 1e-3)) == [None, None, 1.0, 0.0]
+    flat = np.ones_like(rewards) + 1e-15 * rewards
+    assert teacher.quality.known_from_reward(pairs(flat, 0.0)) == [None] * 4  # no scale at all: no known answer
+
+
+def test_known_pairs_are_never_shown_to_who_made_them():
+    """A majority's pair is never a known-answer question for its voters, nor a pair one answered, with annotators."""
+    quality = WebTeacher(port=0, annotators=["ana", "ben", "cal"], answers_per_query=2, known_answer_rate=0.5).quality
+    inputs = np.zeros((2, 4, 3))
+    majority = KnownPair(query_id(inputs), inputs, ("m-left.mp4", "m-right.mp4"), 1.0, "majority", frozenset({"ana", "ben"}))
+    reward = KnownPair(query_id(inputs + 1), inputs + 1, ("r-left.mp4", "r-right.mp4"), 0.0, "true reward")
+    for known, answered_by in ((majority, {"ben"}), (reward, {"cal"})):  # ana's answer to the majority was taken back
+        quality.add_known(known)
+        quality.seen[known.pair] = answered_by
+    session = Session(2, [], 0, Run(Path("/dev/null")).context(2))
+    assert quality.known_question(session, "ana").pair == reward.pair
+    assert quality.known_question(session, "ana") is None  # each pair once a session, the majority never
+    assert quality.known_question(session, "cal").pair == majority.pair
+    assert quality.known_question(session, "cal") is None  # the true-reward pair is hers already: not shown again
+    alone = WebTeacher(port=0, known_answer_rate=0.5).quality
+    alone.add_known(reward)
+    alone.seen[reward.pair] = {"anonymous"}
+    question = alone.known_question(session, "anonymous")  # one person: shown again, under an address of its own
+    assert (
+        question.pair == reward.pair
+        and question.files == reward.files
+        and question.clips[0] == f"/clips/{question.id}-left.mp4"
+    )
+
+
+def test_a_report_that_cannot_be_written(serve, tmp_path, capsys):
+    (tmp_path / "a_file").write_text("")
+    for path in (tmp_path, tmp_path / "a_file" / "report.json"):
+        with pytest.raises(ValueError, match="report_path"):
+            WebTeacher(port=0, report_path=path)
+    report = tmp_path / "new" / "report.json"
+    teacher = serve(report_path=report)
+    assert report.parent.is_dir()
+    report.mkdir()  # taken by a folder after the teacher was made: the write fails
+    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
+    thread, result = ask_in_thread(teacher, make_pairs(2), run.context())
+    while (shown := page.shown()) is not None:
+        assert page.answer(shown, 1) == 200
+    np.testing.assert_array_equal(finish(thread, result), [1, 1])  # the session's answers are given to the model
+    assert "could not be written" in capsys.readouterr().out
+    teacher.close()  # warns again, and closes all the same
+    assert "could not be written" in capsys.readouterr().out and teacher.clips.renderer is None
 
 
 def test_ask_from_a_worker_thread_renders_real_clips(tiny_kwargs, tmp_path):
@@ -433,318 +698,16 @@ def test_ask_from_a_worker_thread_renders_real_clips(tiny_kwargs, tmp_path):
         model.learn(60)
         pairs = sample_segment_pairs(model.real_buffer, 2, 10, 10, np.random.default_rng(0))
         thread, result = ask_in_thread(teacher, pairs, Run(tmp_path / "p.jsonl").context())
-        first = teacher.state()["query"]
+        first = find(teacher, teacher.state()["query"]["id"])
         for label in (0, 1):
             assert teacher.answer(teacher.state()["query"]["id"], label)[0] == 200
         np.testing.assert_array_equal(finish(thread, result), [0, 1])
     finally:
         teacher.close()
-    with av.open(str(tmp_path / "clips" / Path(first["left"]).name)) as container:
+    with av.open(str(tmp_path / "clips" / first.files[0])) as container:
         frames = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
     assert len(frames) == 10 and frames[0].shape == (24, 32, 3) and frames[0].std() > 5  # a picture, not a blank
 
 
-# known-answer questions, the log, what other sites may send ----------------------------------------------------------
-def test_known_answer_questions_look_like_any_other_and_their_first_answer_counts(serve, tmp_path, monkeypatch):
-    """One person, true-reward known answers of feedback session 1 shown again in the next: nothing on the page moves
-    differently on them, their clips carry no ETag of their own, and an undo does not change their score."""
-    monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
-    teacher = serve(known_answer_rate=0.6, seed=0)
-    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
-    first = make_pairs(8)
-    thread, result = ask_in_thread(teacher, first, run.context(1))
-    while (shown := page.shown()) is not None:
-        assert page.answer(shown, true_answer(first, teacher._session.find(shown).inputs)) == 200
-    finish(thread, result)
-    assert (
-        teacher._known and teacher.agreement()["anonymous"]["known_answers"] == 0
-    )  # none shown in the first feedback session
-    second = make_pairs(8, seed=1)
-    thread, result = ask_in_thread(teacher, second, run.context(2))
-    known_seen = 0
-    while (state := page.state())["query"] is not None:
-        shown = state["query"]["id"]
-        assert state["budget"] == {"max": 100, "asked": 8}  # fixed for the session
-        assert all(row[key] is None for row in state["team"] for key in ("known_answers", "known_answer_agreement"))
-        question = teacher._session.find(shown)
-        clip = request(teacher.url + state["query"]["left"].lstrip("/"))
-        assert clip[0] == 200 and "ETag" not in clip[1] and clip[1]["Last-Modified"]
-        if question.known is None:
-            assert page.answer(shown, true_answer(second, question.inputs)) == 200
-        else:
-            known_seen += 1
-            assert page.answer(shown, 1 - question.known) == 200  # wrong first...
-            assert page.state()["answered"] == state["answered"] + 1
-            assert page.undo() == 200 and page.shown() == shown
-            assert page.answer(shown, question.known) == 200  # ...then right: the first answer is the one scored
-        after = page.state()
-        assert after["answered"] == state["answered"] + 1 or after["session"] is None
-    labels = finish(thread, result)
-    assert known_seen >= 1 and not np.isnan(labels).any()
-    stats = teacher.agreement()["anonymous"]
-    assert stats["known_answers"] == known_seen and stats["known_answer_agreement"] == 0
-    assert stats["answers"] == 16 + known_seen and len(run.journal.read()) == 16  # known ones are not journaled
-    between = page.state()["team"][0]
-    assert between["known_answers"] == known_seen and between["session"] == 0  # shown once the session is over
-
-
-def test_tokens_never_reach_the_server_log(serve, caplog, capfd):
-    teacher = serve(annotators=["ana"])
-    token = teacher.links["ana"].split("token=")[1]
-    capfd.readouterr()
-    with caplog.at_level("INFO", logger="werkzeug"):
-        assert request(teacher.url + f"clips/missing.mp4?token={token}")[0] == 404
-        assert request(teacher.url + f"api/answer?token={token}", {"id": "x"})[0] == 400
-        assert request(teacher.url + f"clips/x.mp4?other=1&token={token}&b=2")[0] == 404
-    time.sleep(0.2)  # the server's thread logs after it answered
-    out, err = capfd.readouterr()
-    logged = caplog.text + out + err
-    assert "clips/missing.mp4?token=..." in logged and " 404 " in logged
-    assert token not in logged
-
-
-def test_tokens_are_required_beyond_localhost_whenever_the_server_starts(tmp_path):
-    teacher = WebTeacher(port=0)
-    teacher.host = "0.0.0.0"  # set after construction
-    with pytest.raises(ValueError, match="annotators"):
-        teacher._start_server()
-    assert teacher._server is None
-    loaded = pickle.loads(pickle.dumps(WebTeacher(port=0)))
-    loaded.__setstate__({**loaded.__getstate__(), "host": "0.0.0.0"})  # as a teacher saved with another host
-    with pytest.raises(ValueError, match="annotators"):
-        loaded._start_server()
-
-
-def test_true_reward_known_answers_need_a_return_scale():
-    teacher = WebTeacher(port=0, known_answer_rate=0.5)
-    rewards = np.array([[1.0, 1.0], [1.0, 1.001], [0.0, 3.0], [2.0, 0.0]])[..., None].repeat(4, axis=-1)
-
-    def pairs(rewards: np.ndarray, return_scale: float) -> SegmentPairs:
-        return SegmentPairs(np.zeros((4, 2, 4, 3)), np.zeros((4, 2, 4, 1)), rewards, return_scale, np.zeros((4, 2, 4, 1)))
-
-    # return_scale ~ 0: the margin is measured in the spread of the pairs' returns instead, so 0.004 is not clear
-    assert teacher._known_from_reward(pairs(rewards, 1e-12)) == [None, None, 1.0, 0.0]
-    assert teacher._known_from_reward(pairs(rewards, 1e-3)) == [None, None, 1.0, 0.0]
-    flat = np.ones_like(rewards) + 1e-15 * rewards
-    assert teacher._known_from_reward(pairs(flat, 0.0)) == [None] * 4  # no scale at all: no known answer
-
-
-def test_a_report_that_cannot_be_written(serve, tmp_path, capsys):
-    (tmp_path / "a_file").write_text("")
-    for path in (tmp_path, tmp_path / "a_file" / "report.json"):
-        with pytest.raises(ValueError, match="report_path"):
-            WebTeacher(port=0, report_path=path)
-    report = tmp_path / "new" / "report.json"
-    teacher = serve(report_path=report)
-    assert report.parent.is_dir()
-    report.mkdir()  # taken by a folder after the teacher was made: the write fails
-    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
-    pairs = make_pairs(2)
-    thread, result = ask_in_thread(teacher, pairs, run.context())
-    while (shown := page.shown()) is not None:
-        assert page.answer(shown, 1) == 200
-    np.testing.assert_array_equal(finish(thread, result), [1, 1])  # the session's answers are given to the model
-    assert "could not be written" in capsys.readouterr().out
-    teacher.close()  # warns again, and stops the server all the same
-    assert teacher._server is None and "could not be written" in capsys.readouterr().out
-
-
-def test_other_sites_cannot_post_or_rebind(open_session):
-    """A form of another site (no JSON), a page reached under another name (DNS rebinding): refused, nothing recorded."""
-    teacher = open_session
-    assert teacher.state()["query"]["id"] == "a"
-    form = {"Content-Type": "application/x-www-form-urlencoded"}
-    assert request(teacher.url + "api/answer", b"id=a&label=1", form)[0] == 415
-    assert request(teacher.url + "api/answer", b'{"id": "a", "label": 1}', {"Content-Type": "text/plain"})[0] == 415
-    assert request(teacher.url + "api/answer", {"id": "a", "label": 1})[0] == 200
-    assert request(teacher.url + "api/undo", b"", form)[0] == 415
-    assert request(teacher.url + "api/undo", b"")[0] == 400  # JSON, but no object
-    rebound = {"Host": f"evil.example:{teacher.port}"}
-    assert request(teacher.url + "api/undo", {}, rebound)[0] == 403
-    assert request(teacher.url + "api/state", None, rebound)[0] == 403
-    assert request(teacher.url + "clips/a-left.mp4", None, rebound)[0] == 403
-    assert [entry.label for entry in teacher.model.journal_history()] == [1]  # the one JSON answer, not undone
-    for host in (f"localhost:{teacher.port}", f"[::1]:{teacher.port}", "127.0.0.1"):
-        assert request(teacher.url + "api/state", None, {"Host": host})[0] == 200, host
-
-
-def test_an_error_in_a_route_is_a_json_500(open_session, monkeypatch):
-    def broken(annotator=None):
-        raise RuntimeError("broken")
-
-    monkeypatch.setattr(open_session, "state", broken)
-    status, _, body = request(open_session.url + "api/state")
-    assert status == 500 and "RuntimeError: broken" in json.loads(body)["error"]
-
-
-def test_known_pairs_are_never_shown_to_who_made_them(serve):
-    """A majority's pair is never a known-answer question for its voters, nor a pair one answered, with annotators."""
-    teacher = serve(annotators=["ana", "ben", "cal"], answers_per_query=2, known_answer_rate=0.5)
-    inputs = np.zeros((2, 4, 3))
-    majority = _Known(query_id(inputs), inputs, ("m-left.mp4", "m-right.mp4"), 1.0, "majority", frozenset({"ana", "ben"}))
-    teacher._known.append(majority)
-    teacher._seen[majority.pair] = {"ana", "ben"}
-    reward = _Known(query_id(inputs + 1), inputs + 1, ("r-left.mp4", "r-right.mp4"), 0.0, "true reward")
-    teacher._known.append(reward)
-    teacher._seen[reward.pair] = {"cal"}
-    session = _Session(2, [], 0, Run(Path("/dev/null")).context(2))
-    teacher._seen[majority.pair].discard("ana")  # even were her answer taken back
-    assert teacher._known_question(session, "ana").pair == reward.pair
-    assert teacher._known_question(session, "ana") is None  # each pair once a session, the majority never
-    assert teacher._known_question(session, "cal").pair == majority.pair
-    assert teacher._known_question(session, "cal") is None  # the true-reward pair is hers already: not shown again
-    alone = serve(known_answer_rate=0.5)
-    alone._known.append(reward)
-    alone._seen[reward.pair] = {"anonymous"}
-    assert alone._known_question(session, "anonymous").pair == reward.pair  # one person: shown again
-
-
-# in a real browser ---------------------------------------------------------------------------------------------------
-def _chromium():
-    from selenium import webdriver
-    from selenium.webdriver.chrome.service import Service
-
-    skip_unless(os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER), "Debian's chromium and chromium-driver")
-    options = webdriver.ChromeOptions()
-    options.binary_location = CHROMIUM  # Debian's browser and driver: Selenium downloads nothing
-    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--autoplay-policy=no-user-gesture-required"):
-        options.add_argument(argument)
-    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
-
-
-@pytest.mark.slow
-@pytest.mark.browser
-def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path):
-    from selenium.webdriver.common.keys import Keys
-
-    from sb3_pride.human.render import egl_available
-
-    skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
-    journal = tmp_path / "preferences.jsonl"
-    teacher = WebTeacher(port=0, width=96, height=64)
-    tiny_kwargs.update(queries_per_session=3, max_feedback=6, feedback_interval=100, segment_length=10)
-    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=teacher, preference_journal=journal, seed=0, **tiny_kwargs)
-    errors: list[BaseException] = []
-    training = threading.Thread(target=lambda: _learn(model, 500, errors), daemon=True)
-    training.start()
-
-    driver = _chromium()
-    try:
-        driver.get(teacher.url)
-        body = driver.find_element("tag name", "body")
-
-        def press(key: str, answered: int, session: int) -> None:
-            shown = _wait(lambda: _shown_query(driver, teacher, session))
-            body.send_keys(key)
-            _wait(lambda: (teacher.state()["answered"] == answered and teacher.state()["session"] == session)
-                  or (answered == 3 and teacher.state()["session"] != session))  # fmt: skip
-            assert shown is not None
-
-        # feedback session 1: left, right, undo (takes the "right" back), equal, skip
-        keys = ((Keys.ARROW_LEFT, 1), (Keys.ARROW_RIGHT, 2), (Keys.BACKSPACE, 1), (Keys.ARROW_DOWN, 2), ("s", 3))
-        for key, answered in keys:
-            press(key, answered, session=1)
-        # feedback session 2, picked up without a reload: right, left, equal
-        for key, answered in ((Keys.ARROW_RIGHT, 1), (Keys.ARROW_LEFT, 2), (Keys.ARROW_DOWN, 3)):
-            press(key, answered, session=2)
-    finally:
-        driver.quit()
-    training.join(timeout=120)
-    teacher.close()
-    assert not errors, errors
-    assert model.feedback_sessions == 2 and model.feedback_asked == 6 and model.feedback_labeled == 5
-    np.testing.assert_array_equal(model.preferences.labels, [0, 0.5, 1, 0, 0.5])
-    labels = [entry.label for entry in PreferenceJournal(journal).read()]
-    np.testing.assert_array_equal(labels, [0, 0.5, np.nan, 1, 0, 0.5])
-    assert model.journal_entries == 6
-
-
-@pytest.mark.slow
-@pytest.mark.browser
-def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwargs, tmp_path):
-    """Two browsers, two links: each is shown its own queries, and each answer is journaled with who gave it."""
-    from selenium.webdriver.common.keys import Keys
-
-    from sb3_pride.human.render import egl_available
-
-    skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
-    journal = tmp_path / "preferences.jsonl"
-    teacher = WebTeacher(port=0, width=96, height=64, annotators=["ana", "ben"], instructions="Prefer <b>upright</b> walkers.")
-    tiny_kwargs.update(queries_per_session=4, max_feedback=4, feedback_interval=100, segment_length=10)
-    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=teacher, preference_journal=journal, seed=0, **tiny_kwargs)
-    errors: list[BaseException] = []
-    training = threading.Thread(target=lambda: _learn(model, 300, errors), daemon=True)
-    training.start()
-    drivers = {}
-    try:
-        for name in ("ana", "ben"):
-            drivers[name] = _chromium()
-            drivers[name].get(teacher.links[name])
-        shown = {name: _wait(lambda d=driver: _playing(d)) for name, driver in drivers.items()}
-        assert shown["ana"] != shown["ben"]  # two people, two different queries
-        instructions = drivers["ana"].find_element("id", "instructions")
-        assert instructions.text == "Prefer <b>upright</b> walkers." and not instructions.find_elements("tag name", "b")
-        # ana: left, then undo and right; ben: equal, skip; then whatever is left
-        for name, key in (("ana", Keys.ARROW_LEFT), ("ben", Keys.ARROW_DOWN), ("ana", Keys.BACKSPACE),
-                          ("ana", Keys.ARROW_RIGHT), ("ben", "s")):  # fmt: skip
-            before = _wait(lambda n=name: _playing(drivers[n]) or model.feedback_sessions == 1)
-            drivers[name].find_element("tag name", "body").send_keys(key)
-            _wait(lambda n=name, b=before: _playing(drivers[n]) != b or model.feedback_sessions == 1)
-        while training.is_alive() and model.feedback_sessions == 0:
-            for driver in drivers.values():
-                if _playing(driver):
-                    driver.find_element("tag name", "body").send_keys(Keys.ARROW_LEFT)
-            time.sleep(0.3)
-        team = drivers["ana"].find_element("id", "team").text
-        assert "ana" in team and "ben" in team
-    finally:
-        for driver in drivers.values():
-            driver.quit()
-    training.join(timeout=120)
-    teacher.close()
-    assert not errors, errors
-    assert model.feedback_sessions == 1 and model.feedback_asked == 4
-    entries = PreferenceJournal(journal).read()
-    assert len(entries) == 4 and len({entry.id for entry in entries}) == 4  # no query answered twice
-    assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
-    by_annotator = {name: [_label(e) for e in entries if e.annotator == name] for name in ("ana", "ben")}
-    assert by_annotator["ana"][0] == 1 and by_annotator["ben"][:2] == [0.5, "skip"]  # ana's undo took back her "left"
-
-
 def _label(entry) -> float | str:
     return "skip" if math.isnan(entry.label) else entry.label
-
-
-def _playing(driver) -> str | None:
-    """The question the page shows, once its left clip is playing."""
-    return driver.execute_script(
-        "const v = document.getElementById('left');"
-        "return v.readyState >= 2 && v.videoWidth > 0 && !document.getElementById('labeling').classList.contains('hidden')"
-        " ? document.body.dataset.query || null : null;"
-    )
-
-
-def _learn(model: PEBBLE, steps: int, errors: list) -> None:
-    try:
-        model.learn(steps)
-    except BaseException as error:  # reported by the test's main thread
-        errors.append(error)
-
-
-def _shown_query(driver, teacher: WebTeacher, session: int) -> str | None:
-    """The query the page shows, once it is the query handed to the person in ``session`` and its left clip is playing."""
-    state = teacher.state()
-    if state["session"] != session or state["query"] is None:
-        return None
-    shown = _playing(driver)
-    return shown if shown == state["query"]["id"] else None
-
-
-def _wait(condition, timeout: float = 60.0):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.05)
-    raise AssertionError("timed out waiting for the page")

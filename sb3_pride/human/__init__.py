@@ -2,10 +2,37 @@
 Human feedback: ``WebTeacher`` asks people in a browser (one on this machine, or several annotators with secret links)
 which of two segments is better, while the agent trains.
 Needs the ``[human]`` extra (Flask for the page, PyAV for the clips) and headless MuJoCo rendering (``MUJOCO_GL=egl``).
+
+Its parts: ``AnswerStore`` (the open feedback session, who is handed what, answers and undos; no HTTP), ``Quality``
+(known-answer questions and agreement), ``create_app`` (the page's Flask app and its request guard), ``WebServer``
+(serving it, with tokens and a read timeout) and ``Clips`` (the clips' folder, renderer and render thread).
 """
 
 from sb3_pride.common.render_states import RenderStates
+from sb3_pride.human.app import create_app
+from sb3_pride.human.clips import Clips, RenderThread
+from sb3_pride.human.quality import Quality
+from sb3_pride.human.questions import Answer, KnownPair, Question, Refused, Session
 from sb3_pride.human.render import SegmentRenderer, encode_mp4
-from sb3_pride.human.web import WebTeacher
+from sb3_pride.human.server import WebServer
+from sb3_pride.human.store import AnswerStore
+from sb3_pride.human.web import WebTeacher, shared_web_teacher
 
-__all__ = ["RenderStates", "SegmentRenderer", "WebTeacher", "encode_mp4"]
+__all__ = [
+    "Answer",
+    "AnswerStore",
+    "Clips",
+    "KnownPair",
+    "Quality",
+    "Question",
+    "Refused",
+    "RenderStates",
+    "RenderThread",
+    "SegmentRenderer",
+    "Session",
+    "WebServer",
+    "WebTeacher",
+    "create_app",
+    "encode_mp4",
+    "shared_web_teacher",
+]

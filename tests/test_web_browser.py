@@ -1,0 +1,160 @@
+"""WebTeacher in real headless Chromium during PEBBLE runs: a person's keys over two feedback sessions, and two
+annotators labeling one session together in two browsers."""
+
+import math
+import os
+import threading
+import time
+
+import numpy as np
+import pytest
+from conftest import skip_unless
+from test_web import wait
+
+from sb3_pride import PEBBLE
+from sb3_pride.common.journal import PreferenceJournal
+from sb3_pride.human import WebTeacher
+
+pytest.importorskip("flask")
+CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
+
+
+# in a real browser ---------------------------------------------------------------------------------------------------
+def _chromium():
+    from selenium import webdriver
+    from selenium.webdriver.chrome.service import Service
+
+    skip_unless(os.path.exists(CHROMIUM) and os.path.exists(CHROMEDRIVER), "Debian's chromium and chromium-driver")
+    options = webdriver.ChromeOptions()
+    options.binary_location = CHROMIUM  # Debian's browser and driver: Selenium downloads nothing
+    for argument in ("--headless=new", "--no-sandbox", "--disable-gpu", "--autoplay-policy=no-user-gesture-required"):
+        options.add_argument(argument)
+    return webdriver.Chrome(service=Service(CHROMEDRIVER), options=options)
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path):
+    from selenium.webdriver.common.keys import Keys
+
+    from sb3_pride.human.render import egl_available
+
+    skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
+    journal = tmp_path / "preferences.jsonl"
+    teacher = WebTeacher(port=0, width=96, height=64)
+    tiny_kwargs.update(queries_per_session=3, max_feedback=6, feedback_interval=100, segment_length=10)
+    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=teacher, preference_journal=journal, seed=0, **tiny_kwargs)
+    errors: list[BaseException] = []
+    training = threading.Thread(target=lambda: _learn(model, 500, errors), daemon=True)
+    training.start()
+
+    driver = _chromium()
+    try:
+        driver.get(teacher.url)
+        body = driver.find_element("tag name", "body")
+
+        def press(key: str, answered: int, session: int) -> None:
+            shown = wait(lambda: _shown_query(driver, teacher, session))
+            body.send_keys(key)
+            wait(lambda: (teacher.state()["answered"] == answered and teacher.state()["session"] == session)
+                  or (answered == 3 and teacher.state()["session"] != session))  # fmt: skip
+            assert shown is not None
+
+        # feedback session 1: left, right, undo (takes the "right" back), equal, skip
+        keys = ((Keys.ARROW_LEFT, 1), (Keys.ARROW_RIGHT, 2), (Keys.BACKSPACE, 1), (Keys.ARROW_DOWN, 2), ("s", 3))
+        for key, answered in keys:
+            press(key, answered, session=1)
+        # feedback session 2, picked up without a reload: right, left, equal
+        for key, answered in ((Keys.ARROW_RIGHT, 1), (Keys.ARROW_LEFT, 2), (Keys.ARROW_DOWN, 3)):
+            press(key, answered, session=2)
+    finally:
+        driver.quit()
+    training.join(timeout=120)
+    teacher.close()
+    assert not errors, errors
+    assert model.feedback_sessions == 2 and model.feedback_asked == 6 and model.feedback_labeled == 5
+    np.testing.assert_array_equal(model.preferences.labels, [0, 0.5, 1, 0, 0.5])
+    labels = [entry.label for entry in PreferenceJournal(journal).read()]
+    np.testing.assert_array_equal(labels, [0, 0.5, np.nan, 1, 0, 0.5])
+    assert model.journal_entries == 6
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwargs, tmp_path):
+    """Two browsers, two links: each is shown its own queries, and each answer is journaled with who gave it."""
+    from selenium.webdriver.common.keys import Keys
+
+    from sb3_pride.human.render import egl_available
+
+    skip_unless(egl_available(), "headless EGL (MUJOCO_GL=egl) to render the clips")
+    journal = tmp_path / "preferences.jsonl"
+    teacher = WebTeacher(port=0, width=96, height=64, annotators=["ana", "ben"], instructions="Prefer <b>upright</b> walkers.")
+    tiny_kwargs.update(queries_per_session=4, max_feedback=4, feedback_interval=100, segment_length=10)
+    model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", teacher=teacher, preference_journal=journal, seed=0, **tiny_kwargs)
+    errors: list[BaseException] = []
+    training = threading.Thread(target=lambda: _learn(model, 300, errors), daemon=True)
+    training.start()
+    drivers = {}
+    try:
+        for name in ("ana", "ben"):
+            drivers[name] = _chromium()
+            drivers[name].get(teacher.links[name])
+        shown = {name: wait(lambda d=driver: _playing(d)) for name, driver in drivers.items()}
+        assert shown["ana"] != shown["ben"]  # two people, two different queries
+        instructions = drivers["ana"].find_element("id", "instructions")
+        assert instructions.text == "Prefer <b>upright</b> walkers." and not instructions.find_elements("tag name", "b")
+        # ana: left, then undo and right; ben: equal, skip; then whatever is left
+        for name, key in (("ana", Keys.ARROW_LEFT), ("ben", Keys.ARROW_DOWN), ("ana", Keys.BACKSPACE),
+                          ("ana", Keys.ARROW_RIGHT), ("ben", "s")):  # fmt: skip
+            before = wait(lambda n=name: _playing(drivers[n]) or model.feedback_sessions == 1)
+            drivers[name].find_element("tag name", "body").send_keys(key)
+            wait(lambda n=name, b=before: _playing(drivers[n]) != b or model.feedback_sessions == 1)
+        while training.is_alive() and model.feedback_sessions == 0:
+            for driver in drivers.values():
+                if _playing(driver):
+                    driver.find_element("tag name", "body").send_keys(Keys.ARROW_LEFT)
+            time.sleep(0.3)
+        team = drivers["ana"].find_element("id", "team").text
+        assert "ana" in team and "ben" in team
+    finally:
+        for driver in drivers.values():
+            driver.quit()
+    training.join(timeout=120)
+    teacher.close()
+    assert not errors, errors
+    assert model.feedback_sessions == 1 and model.feedback_asked == 4
+    entries = PreferenceJournal(journal).read()
+    assert len(entries) == 4 and len({entry.id for entry in entries}) == 4  # no query answered twice
+    assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
+    by_annotator = {name: [_label(e) for e in entries if e.annotator == name] for name in ("ana", "ben")}
+    assert by_annotator["ana"][0] == 1 and by_annotator["ben"][:2] == [0.5, "skip"]  # ana's undo took back her "left"
+
+
+def _label(entry) -> float | str:
+    return "skip" if math.isnan(entry.label) else entry.label
+
+
+def _playing(driver) -> str | None:
+    """The question the page shows, once its left clip is playing."""
+    return driver.execute_script(
+        "const v = document.getElementById('left');"
+        "return v.readyState >= 2 && v.videoWidth > 0 && !document.getElementById('labeling').classList.contains('hidden')"
+        " ? document.body.dataset.query || null : null;"
+    )
+
+
+def _learn(model: PEBBLE, steps: int, errors: list) -> None:
+    try:
+        model.learn(steps)
+    except BaseException as error:  # reported by the test's main thread
+        errors.append(error)
+
+
+def _shown_query(driver, teacher: WebTeacher, session: int) -> str | None:
+    """The query the page shows, once it is the query handed to the person in ``session`` and its left clip is playing."""
+    state = teacher.state()
+    if state["session"] != session or state["query"] is None:
+        return None
+    shown = _playing(driver)
+    return shown if shown == state["query"]["id"] else None
