@@ -120,7 +120,7 @@ def test_pride_records_states_in_its_real_buffer_and_a_saved_web_teacher_comes_b
     model.teacher.close()
     model.save(tmp_path / "model.zip")
     loaded = PRIDE.load(tmp_path / "model.zip", env=model.get_env())  # the teacher's settings, a new server
-    assert isinstance(loaded.teacher, WebTeacher) and loaded.teacher._server is not None
+    assert isinstance(loaded.teacher, WebTeacher) and loaded.teacher.server.running
     assert loaded.real_buffer.record_render_states
     loaded.teacher.close()
 
