@@ -76,10 +76,11 @@ def instrument(model: Any, timer: Timer) -> None:
     model.train = timer.wrap(model.train, "sac_update")
     if not hasattr(model, "reward_model"):
         return
-    model.state_entropy = TimedCallable(model.state_entropy, timer, "state_entropy")
+    model.replay_rewards.state_entropy = TimedCallable(model.replay_rewards.state_entropy, timer, "state_entropy")
     model.reward_model.train_epochs = timer.wrap(model.reward_model.train_epochs, "reward_learning")
-    if getattr(model, "consistency_model", None) is not None:  # REED's passes, before each reward update
-        model.consistency_model.train_epochs = timer.wrap(model.consistency_model.train_epochs, "consistency")
+    consistency = model.reward_learner.consistency
+    if consistency is not None:  # REED's passes, before each reward update
+        consistency.train_epochs = timer.wrap(consistency.train_epochs, "consistency")
     model.relabel = timer.wrap(model.relabel, "relabel")
     if hasattr(model, "generator"):  # PRIDE: the generator's two costly steps (sampling includes the filter's draws)
         model.generator.fit = timer.wrap(model.generator.fit, "diffusion_training")

@@ -120,7 +120,11 @@ def record(data: Path, checkpoints: list[int], seed: int, command: str) -> None:
     class Probe(BaseCallback):
         def _on_step(self) -> bool:
             if self.num_timesteps in checkpoints:
-                corr[self.num_timesteps] = model.reward_correlation() if len(model.preferences) else float("nan")
+                corr[self.num_timesteps] = (
+                    model.reward_learner.correlation(model.real_buffer, model.preference_rng)
+                    if len(model.preferences)
+                    else float("nan")
+                )
                 print(f"checkpoint {self.num_timesteps}: {model.feedback_labeled} labels so far", flush=True)
             return True
 
@@ -505,11 +509,14 @@ def screen(args: argparse.Namespace) -> dict[str, Any]:
     recorded = json.loads(provenance_file.read_text()) if provenance_file.exists() else {}
     _, kwargs = yaml_entry("cpu", "pebble", TASK)
     from sb3_pride import PEBBLE
+    from sb3_pride.common.reward_learner import RewardLearner
 
     defaults = {p.name: p.default for p in inspect.signature(PEBBLE.__init__).parameters.values()}
-    keys = ("segment_length", "queries_per_session", "ensemble_size", "reward_net_arch", "reward_learning_rate",
-            "reward_batch_size", "reward_epochs")  # fmt: skip
-    reward_kwargs = {key: kwargs.get(key, defaults[key]) for key in keys}
+    learner = {**RewardLearner.settings(), **(kwargs.get("reward_kwargs") or {})}
+    # the bench's record keeps PEBBLE's flat names of these settings
+    reward_kwargs = {key: kwargs.get(key, defaults[key]) for key in ("segment_length", "queries_per_session")}
+    reward_kwargs.update({f"reward_{key}": learner[key] for key in ("net_arch", "learning_rate", "batch_size", "epochs")})
+    reward_kwargs["ensemble_size"] = learner["ensemble_size"]
     budgets = sorted(args.budgets)
     if any(b % reward_kwargs["queries_per_session"] for b in budgets):
         raise SystemExit(f"--budgets must be multiples of queries_per_session ({reward_kwargs['queries_per_session']})")

@@ -32,7 +32,7 @@ from stable_baselines3 import SAC
 
 import sb3_pride
 from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
-from sb3_pride.pebble.callbacks import FeedbackCallback, UnsupervisedPretrainingCallback
+from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
@@ -117,8 +117,7 @@ def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False
         kwargs["teacher"] = PacedTeacher(teacher, pace)
     model = cls("MlpPolicy", env_id, seed=seed, **kwargs)
     if algo != "sac":
-        timed = [UnsupervisedPretrainingCallback(), TimedFeedback()] + ([TimedDiffusion()] if algo == "pride" else [])
-        model._preference_callbacks = lambda: timed  # type: ignore[method-assign]
+        model.phase_callbacks = (TimedFeedback, TimedDiffusion) if algo == "pride" else (TimedFeedback,)  # type: ignore[misc]
     start = time.perf_counter()
     model.learn(timesteps)
     return {"seconds": time.perf_counter() - start, **TIMES}

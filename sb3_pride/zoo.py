@@ -75,7 +75,7 @@ def sample_pebble_params(trial: Any, n_actions: int, n_envs: int, additional_arg
         "queries_per_session": trial.suggest_categorical("queries_per_session", [10, 25, 50, 100]),
         "query_selection": trial.suggest_categorical("query_selection", ["uniform", "disagreement", "entropy"]),
         "unsupervised_steps": trial.suggest_categorical("unsupervised_steps", [0, 2000, 5000, 9000]),
-        "reward_epochs": trial.suggest_categorical("reward_epochs", [10, 50, 100]),
+        "reward_kwargs": {"epochs": trial.suggest_categorical("reward_epochs", [10, 50, 100])},
     }
 
 
@@ -92,16 +92,17 @@ def sample_pride_params(trial: Any, n_actions: int, n_envs: int, additional_args
     }
 
 
-#: trial parameters that are ``TransitionGenerator`` arguments (PRIDE's ``generator_kwargs``)
-GENERATOR_TRIAL_PARAMS = ("train_steps",)
+#: trial parameters that are entries of a structured setting: (setting, key)
+STRUCTURED_TRIAL_PARAMS = {"train_steps": ("generator_kwargs", "train_steps"), "reward_epochs": ("reward_kwargs", "epochs")}
 
 
 def convert_params(sampled: dict[str, Any]) -> dict[str, Any]:
     """A trial's sampled values as constructor arguments (used by ``--trial-id`` to reload a trial)."""
-    kwargs = {key: value for key, value in sampled.items() if key not in GENERATOR_TRIAL_PARAMS}
-    generator = {key: value for key, value in sampled.items() if key in GENERATOR_TRIAL_PARAMS}
-    if generator:
-        kwargs["generator_kwargs"] = generator
+    kwargs = {key: value for key, value in sampled.items() if key not in STRUCTURED_TRIAL_PARAMS}
+    for name, value in sampled.items():
+        if name in STRUCTURED_TRIAL_PARAMS:
+            setting, key = STRUCTURED_TRIAL_PARAMS[name]
+            kwargs.setdefault(setting, {})[key] = value
     return kwargs
 
 
@@ -129,15 +130,15 @@ def _continue_step_count(manager_class: type) -> type:
 
     class ExperimentManager(manager_class):  # type: ignore[misc, valid-type]
         def objective(self, trial: Any) -> float:
-            # rl-zoo3 updates the entry with the sampled values key by key: a sampled generator_kwargs would replace
-            # the entry's (a recipe's generator) instead of changing one of its settings, so it is merged here
+            # rl-zoo3 updates the entry with the sampled values key by key: a sampled generator_kwargs (reward_kwargs)
+            # would replace the entry's (a recipe's generator) instead of changing one of its settings: merged here
             import rl_zoo3.hyperparams_opt as hpo
 
             sampler = hpo.HYPERPARAMS_SAMPLER[self.algo]
-            base = self._hyperparams.get("generator_kwargs") or {}
+            base = {key: self._hyperparams[key] for key in ("generator_kwargs", "reward_kwargs") if self._hyperparams.get(key)}
 
             def merged(*args: Any) -> dict[str, Any]:
-                return merge_kwargs({"generator_kwargs": base}, sampler(*args)) if base else sampler(*args)
+                return merge_kwargs(base, sampler(*args))
 
             hpo.HYPERPARAMS_SAMPLER[self.algo] = merged  # type: ignore[assignment]
             try:

@@ -215,3 +215,136 @@ def test_callbacks_use_the_models_public_interface(path: str) -> None:
     """The callbacks drive the phases through public methods and attributes: no `model._...`, no SB3 privates."""
     private = re.findall(r"\bmodel\._\w+", (ROOT / path).read_text())
     assert not private, private
+
+
+# -- PEBBLE's shape: SAC plus composed parts -------------------------------------------------------------------------
+def class_node(path: str, name: str) -> ast.ClassDef:
+    tree = ast.parse((ROOT / path).read_text(encoding="utf-8"))
+    return next(node for node in ast.walk(tree) if isinstance(node, ast.ClassDef) and node.name == name)
+
+
+def methods(node: ast.ClassDef) -> list[ast.FunctionDef]:
+    """The functions defined in a class body (properties, class and static methods included)."""
+    return [item for item in node.body if isinstance(item, (ast.FunctionDef, ast.AsyncFunctionDef))]  # type: ignore[misc]
+
+
+def test_pebble_stays_sac_sized() -> None:
+    """pebble.py, the PEBBLE class's methods and its constructor stay within the budgets of a SAC-shaped algorithm."""
+    import inspect
+
+    from stable_baselines3 import SAC
+
+    from sb3_pride import PEBBLE
+
+    assert len((ROOT / "sb3_pride/pebble/pebble.py").read_text().splitlines()) <= 450
+    pebble = class_node("sb3_pride/pebble/pebble.py", "PEBBLE")
+    assert len(methods(pebble)) <= 25, [f.name for f in methods(pebble)]
+    init = next(f for f in methods(pebble) if f.name == "__init__")
+    assert init.end_lineno is not None and init.end_lineno - init.lineno + 1 <= 90
+    sac = set(inspect.signature(SAC.__init__).parameters)
+    own = [
+        name
+        for name, p in inspect.signature(PEBBLE.__init__).parameters.items()
+        if name not in sac and not name.startswith("_") and p.kind != p.VAR_KEYWORD
+    ]
+    assert len(own) <= 14, own
+
+
+def test_the_model_sets_one_object_on_the_replay_buffer(tiny_kwargs) -> None:
+    """The replay buffer asks one object about rewards: a trained model's buffer holds one attribute a fresh one lacks."""
+    from sb3_pride import PEBBLE
+    from sb3_pride.common.buffers import PreferenceReplayBuffer
+
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs).learn(450)
+    buffer = model.replay_buffer
+    fresh = PreferenceReplayBuffer(buffer.buffer_size, buffer.observation_space, buffer.action_space, device="cpu")
+    assert sorted(set(vars(buffer)) - set(vars(fresh))) == ["reward_source"]
+
+
+def test_a_labels_way_passes_through_few_pebble_methods(tiny_kwargs) -> None:
+    """From the teacher's answer to SAC's next minibatch (take the answers, learn r̂, relabel, train), ≤ 6 methods."""
+    import sys
+
+    from sb3_pride import PEBBLE
+
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs).learn(350)  # pre-training, then session 1
+    assert model.publish_queries(asynchronous=False)
+    called: set[str] = set()
+
+    def trace(frame, event, arg):  # type: ignore[no-untyped-def]
+        if event == "call" and frame.f_code.co_filename.endswith("sb3_pride/pebble/pebble.py"):
+            called.add(frame.f_code.co_name)
+
+    sys.setprofile(trace)
+    try:
+        model.take_answers()
+        model.train(gradient_steps=1, batch_size=model.batch_size)
+    finally:
+        sys.setprofile(None)
+    assert "take_answers" in called and "train" in called
+    assert len(called) <= 6, sorted(called)
+
+
+def test_human_files_and_the_web_teacher_stay_small() -> None:
+    """No file under sb3_pride/human/ is a hub: each ≤ 400 lines, and WebTeacher a facade of ≤ 15 methods."""
+    sizes = {path.name: len(path.read_text().splitlines()) for path in (ROOT / "sb3_pride/human").glob("*.py")}
+    assert max(sizes.values()) <= 400, sizes
+    teacher = next(
+        node
+        for path in (ROOT / "sb3_pride/human").glob("*.py")
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.ClassDef) and node.name == "WebTeacher"
+    )
+    assert len(methods(teacher)) <= 15, [f.name for f in methods(teacher)]
+
+
+def private_names(package: Path) -> set[str]:
+    """
+    The private names a package defines: functions, classes and module variables named ``_x``, methods ``_x`` and
+    attributes set as ``self._x`` (dunders aside).
+    """
+    names = set()
+    for path in package.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                names.add(node.name)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
+                names.add(node.attr)
+            elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
+                names.add(node.id)
+    return {name for name in names if name.startswith("_") and not name.startswith("__")}
+
+
+def private_uses(source: str, names: set[str]) -> list[str]:
+    """Uses of ``names`` in ``source``: as an attribute (``x._name``) or imported (``from m import _name``)."""
+    found = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Attribute) and node.attr in names:
+            found.append(f"{node.lineno}: .{node.attr}")
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").startswith("sb3_pride"):
+            found.extend(f"{node.lineno}: import {alias.name}" for alias in node.names if alias.name in names)
+    return found
+
+
+def test_private_name_detection() -> None:
+    names = {"_session", "_helper"}
+    assert private_uses("teacher._session.queries", names) == ["1: ._session"]
+    assert private_uses("from sb3_pride.human.web import _helper", names) == ["1: import _helper"]
+    assert private_uses("model._last_obs\nteacher.session", names) == []
+
+
+def test_tests_use_only_public_names_of_the_package() -> None:
+    """Tests use what a user can: no private name of sb3_pride (SB3's and gymnasium's own, which it overrides, aside)."""
+    import gymnasium
+    import stable_baselines3
+
+    ours = private_names(ROOT / "sb3_pride")
+    theirs = private_names(Path(stable_baselines3.__file__).parent) | private_names(Path(gymnasium.__file__).parent)
+    names = ours - theirs
+    offending = [
+        f"{path.name}:{use}"
+        for path in sorted((ROOT / "tests").glob("*.py"))
+        if path.name != "test_repository.py"
+        for use in private_uses(path.read_text(encoding="utf-8"), names)
+    ]
+    assert not offending, "tests use private names of sb3_pride:\n" + "\n".join(offending)

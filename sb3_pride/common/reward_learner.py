@@ -119,7 +119,7 @@ class RewardLearner:
     def settings(cls) -> dict[str, Any]:
         """The settings ``reward_kwargs`` may give, with their defaults."""
         parameters = inspect.signature(cls.__init__).parameters
-        return {name: p.default for name, p in parameters.items() if p.default is not inspect.Parameter.empty and name != "device"}
+        return {name: p.default for name, p in parameters.items() if p.default is not p.empty and name != "device"}
 
     @classmethod
     def check_kwargs(cls, reward_kwargs: Any, segment_length: int) -> None:
@@ -231,7 +231,8 @@ class ReplayRewards:
         self.bonus_active = False
         self.step = 0
         self.vec_normalize: VecNormalize | None = None
-        self.recent_share, self.recent_rows = 0.0, None
+        self.recent_share: float = 0.0
+        self.recent_rows: np.ndarray | None = None
 
     def update(
         self,

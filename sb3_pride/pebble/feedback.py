@@ -194,7 +194,8 @@ class FeedbackLoop:
     def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray:
         """The teacher's labels μ for ``pairs``, checked (``check_labels``)."""
         teacher = self.teacher
-        answer = teacher.ask(pairs, context) if isinstance(teacher, InteractiveTeacher) else teacher(pairs)  # type: ignore[operator, union-attr]
+        assert teacher is not None, "resolve() the teacher first"
+        answer = teacher.ask(pairs, context) if isinstance(teacher, InteractiveTeacher) else teacher(pairs)
         return check_labels(answer, len(pairs))
 
     def _answer(self, pairs: SegmentPairs, context: FeedbackContext, answers: "Future[np.ndarray]") -> None:
@@ -227,9 +228,8 @@ class FeedbackLoop:
         interactive = isinstance(self.teacher, InteractiveTeacher)
         # the journal is written before the answers are used: a crash from here on loses none of them
         if not interactive:
-            self.journal.record(
-                [JournalEntry(pending.session, pair, label) for pair, label in zip(pending.new_inputs, new_labels, strict=True)]
-            )
+            pairs = zip(pending.new_inputs, new_labels, strict=True)
+            self.journal.record([JournalEntry(pending.session, pair, label) for pair, label in pairs])
         if interactive and self.journal.path is not None:
             # every answer the teacher journaled during the session (several per query from several annotators)
             self.journal.included += pending.n_journal_entries + len(self.journal.history()) - pending.journal_length

@@ -15,22 +15,21 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.common.consistency import DynamicsConsistency
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.env_checks import check_env
 from sb3_pride.common.journal import JournalBook, atomic_write_path
 from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import OPTION_SETTINGS, ReplayRewards, RewardLearner
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
-from sb3_pride.common.teachers import InteractiveTeacher, Teacher, make_teacher
+from sb3_pride.common.teachers import InteractiveTeacher, Teacher
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option, seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop
-from sb3_pride.pebble.migration import migrate_parameters, migrate_saved_model, move_renamed_settings
+from sb3_pride.pebble.migration import migrate_parameters, migrate_saved_model
+from sb3_pride.pebble.settings import check_sac_arguments, preference_settings
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
-
-#: ``pretraining_kwargs``: k of the k-NN state entropy (PEBBLE: 5), gradient steps on r̂ after the critic reset (100)
-PRETRAINING_DEFAULTS = {"entropy_k": 5, "critic_reset_updates": 100}
 
 
 class PEBBLE(SAC):
@@ -130,35 +129,15 @@ class PEBBLE(SAC):
         _init_setup_model: bool = True,
         **renamed_settings: Any,
     ):
-        structured = move_renamed_settings(renamed_settings, dict(reward_kwargs=reward_kwargs, query_kwargs=query_kwargs,
-                                                                  pretraining_kwargs=pretraining_kwargs))  # fmt: skip
-        check_positive_ints(max_feedback=max_feedback, feedback_interval=feedback_interval, queries_per_session=queries_per_session)
+        check_positive_ints(max_feedback=max_feedback, feedback_interval=feedback_interval)
+        check_positive_ints(queries_per_session=queries_per_session)
         check_non_negative_ints(unsupervised_steps=unsupervised_steps)
-        if isinstance(gradient_steps, bool) or not isinstance(gradient_steps, (int, np.integer)):
-            # SB3's: -1 as many updates as env steps collected, 0 none (a user's own loop calls train())
-            raise ValueError(f"gradient_steps must be an integer, got {gradient_steps!r}")
         if not isinstance(asynchronous_feedback, (bool, np.bool_)):
             raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
-        # checked before anything is made
-        QuerySampler(segment_length, query_selection, **structured["query_kwargs"])
-        RewardLearner.check_kwargs(structured["reward_kwargs"], segment_length)
-        unknown = sorted(set(structured["pretraining_kwargs"]) - set(PRETRAINING_DEFAULTS))
-        if unknown:
-            raise ValueError(f"pretraining_kwargs: unknown settings {unknown}; it takes {sorted(PRETRAINING_DEFAULTS)}")
-        pretraining = {**PRETRAINING_DEFAULTS, **structured["pretraining_kwargs"]}
-        check_positive_ints(entropy_k=pretraining["entropy_k"])
-        check_non_negative_ints(critic_reset_updates=pretraining["critic_reset_updates"])
-        if n_steps != 1:
-            raise ValueError(
-                f"n_steps must be 1, got {n_steps}: n-step returns sum stored rewards along a trajectory, but PEBBLE "
-                "relabels every stored reward with r̂ after each reward update, so the sums would mix rewards of "
-                "different models"
-            )
-        if replay_buffer_class is not None and not issubclass(replay_buffer_class, self.buffer_class):
-            raise ValueError(
-                f"replay_buffer_class must subclass {self.buffer_class.__name__} (true rewards kept aside), "
-                f"got {replay_buffer_class.__name__}"
-            )
+        check_sac_arguments(n_steps, gradient_steps, replay_buffer_class, self.buffer_class)
+        settings = preference_settings(
+            renamed_settings, segment_length, query_selection, reward_kwargs, query_kwargs, pretraining_kwargs
+        )
         # resolved before the env is made: a teacher that renders (a person's) may set up headless rendering first
         self.feedback = FeedbackLoop(JournalBook(None, ()))
         self.feedback.resolve(teacher, seed)
@@ -177,19 +156,20 @@ class PEBBLE(SAC):
             _init_setup_model=False,
         )  # fmt: skip
         self.teacher = teacher  # as given: a registered name stays a name, so that rl-zoo3 can pass it again on resume
-        self.max_feedback, self.feedback_interval, self.queries_per_session = max_feedback, feedback_interval, queries_per_session
-        self.segment_length, self.query_selection, self.unsupervised_steps = segment_length, query_selection, unsupervised_steps
+        self.max_feedback, self.feedback_interval = max_feedback, feedback_interval
+        self.queries_per_session = queries_per_session
+        self.segment_length, self.query_selection = segment_length, query_selection
+        self.unsupervised_steps, self.asynchronous_feedback = unsupervised_steps, bool(asynchronous_feedback)
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
-        self.asynchronous_feedback = bool(asynchronous_feedback)
-        self.reward_kwargs, self.query_kwargs = structured["reward_kwargs"], structured["query_kwargs"]
-        self.pretraining_kwargs = pretraining
+        self.reward_kwargs, self.query_kwargs = settings["reward_kwargs"], settings["query_kwargs"]
+        self.pretraining_kwargs = settings["pretraining_kwargs"]
         # learning state, saved with the model
         self.feedback_asked = self.feedback_labeled = self.feedback_sessions = 0
         #: env steps the agent made while a published session's answers were awaited, over the run
         self.steps_awaiting_feedback = 0
         self.next_feedback_step = learning_starts + unsupervised_steps
         self.preference_rng = np.random.default_rng(seed)
-        self.state_entropy = StateEntropyReward(k=pretraining["entropy_k"])
+        self.state_entropy = StateEntropyReward(k=self.pretraining_kwargs["entropy_k"])
         #: train() calls between two critic diagnostics (train/critic_loss_real, train/q_real, train/q)
         self.diagnostic_interval, self._train_calls = 100, 0
         self._diagnostic_rng = np.random.default_rng(None if seed is None else seed + 1)
@@ -200,12 +180,11 @@ class PEBBLE(SAC):
         migrate_saved_model(self.__dict__)  # a model saved by 0.1.0 or 0.2.0
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
-        previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's running selection goes on
+        previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's selection goes on (0.2.0 saved it apart)
+        carried = self.__dict__.pop("migrated_label_selection", getattr(previous, "label_selection", None))
         self.reward_learner = RewardLearner(obs_dim, action_dim, self.segment_length, device=self.device, **self.reward_kwargs)
-        self.reward_learner.label_selection = self.__dict__.pop("migrated_label_selection", None) or (
-            previous.label_selection if previous is not None and self.reward_learner.label_selection is not None
-            else self.reward_learner.label_selection
-        )  # fmt: skip
+        if carried is not None and self.reward_learner.label_selection is not None:
+            self.reward_learner.label_selection = carried
         self.reward_model = self.reward_learner.ensemble
         self.query_sampler = QuerySampler(self.segment_length, self.query_selection, **self.query_kwargs)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own
@@ -236,9 +215,9 @@ class PEBBLE(SAC):
             saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
             migrate_saved_model(saved := saved or {})
             was, now = (
-                make_option("dynamics_consistency", value.get("dynamics_consistency", False), cls.option_settings["dynamics_consistency"])
+                make_option("dynamics_consistency", value.get("dynamics_consistency", False), DynamicsConsistency)
                 for value in (saved.get("reward_kwargs") or {}, kwargs["reward_kwargs"] or {})
-            )  # fmt: skip
+            )
             if (was is None) != (now is None) or (was is not None and now is not None and was.optimizer != now.optimizer):
                 raise ValueError(
                     f"reward_kwargs: the model at {path} was saved with dynamics_consistency={was}, and loading cannot "
@@ -343,14 +322,14 @@ class PEBBLE(SAC):
         :return: False when no segment fits in the stored episodes yet (nothing was asked)
         """
         self.feedback.resolve(self.teacher, self.seed)
-        session = self.feedback_sessions + 1
+        sampler, session = self.query_sampler, self.feedback_sessions + 1
+        returns, labeled = self.reward_model.member_segment_returns, self.preferences.inputs
         return self.feedback.publish(
             self.feedback.context(session, self.feedback_asked, self.max_feedback),
             n_queries=min(self.queries_per_session, self.max_feedback - self.feedback_asked),
-            choose=lambda n, asked_before: self.query_sampler.choose(
-                self.real_buffer, n, self.preference_rng, self.reward_model.member_segment_returns,
-                self.preferences.inputs, asked_before, first=self.in_pretraining,
-            ),  # fmt: skip
+            choose=lambda n, asked: sampler.choose(
+                self.real_buffer, n, self.preference_rng, returns, labeled, asked, first=session == 1
+            ),
             step=self.num_timesteps,
             asynchronous=self.asynchronous_feedback if asynchronous is None else asynchronous,
         )
@@ -462,20 +441,10 @@ class PEBBLE(SAC):
             state_dicts += ["reward_learner.consistency", "reward_learner.consistency.optimizer"]
         return state_dicts, variables
 
-    def learn(
-        self: SelfPEBBLE,
-        total_timesteps: int,
-        callback: MaybeCallback = None,
-        log_interval: int = 4,
-        tb_log_name: str | None = None,
-        reset_num_timesteps: bool = True,
-        progress_bar: bool = False,
-    ) -> SelfPEBBLE:
+    def learn(self: SelfPEBBLE, total_timesteps: int, callback: MaybeCallback = None, log_interval: int = 4,
+              tb_log_name: str | None = None, reset_num_timesteps: bool = True,
+              progress_bar: bool = False) -> SelfPEBBLE:  # fmt: skip
+        """SB3's ``learn``, logged under the algorithm's own name ("PEBBLE" or "PRIDE") unless ``tb_log_name`` says."""
         return super().learn(
-            total_timesteps=total_timesteps,
-            callback=callback,
-            log_interval=log_interval,
-            tb_log_name=tb_log_name or type(self).__name__,  # "PEBBLE" or "PRIDE"
-            reset_num_timesteps=reset_num_timesteps,
-            progress_bar=progress_bar,
+            total_timesteps, callback, log_interval, tb_log_name or type(self).__name__, reset_num_timesteps, progress_bar
         )
