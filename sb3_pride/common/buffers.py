@@ -29,7 +29,9 @@ class RewardSource(Protocol):
         """The rewards stored with transitions being added, (n_envs,): r̂, or 0 before the first reward model."""
         ...
 
-    def rewrite(self, samples: ReplayBufferSamples, buffer: "PreferenceReplayBuffer", env: VecNormalize | None) -> ReplayBufferSamples:
+    def rewrite(
+        self, samples: ReplayBufferSamples, buffer: "PreferenceReplayBuffer", env: VecNormalize | None
+    ) -> ReplayBufferSamples:
         """A sampled minibatch with the rewards SAC learns from (e.g. r_int while pre-training, r̂ plus a bonus)."""
         ...
 

@@ -75,9 +75,7 @@ def move_renamed_settings(given: dict[str, Any], structured: dict[str, dict[str,
         setting, key = RENAMED_PEBBLE_SETTINGS[old]
         if key in moved[setting]:
             raise ValueError(f"{old} is given twice: as a keyword and as {setting}[{key!r}]; give it in {setting} only")
-        warnings.warn(
-            f"{old} is deprecated: give it as {setting}={{{key!r}: ...}}", DeprecationWarning, stacklevel=3
-        )
+        warnings.warn(f"{old} is deprecated: give it as {setting}={{{key!r}: ...}}", DeprecationWarning, stacklevel=3)
         moved[setting][key] = value
     return moved
 

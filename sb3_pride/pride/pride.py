@@ -107,7 +107,8 @@ class PRIDE(PEBBLE):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        self.generator_kwargs = {**migrate_generator_settings(self.__dict__), **self.generator_kwargs}  # a model saved by 0.1.0
+        # a model saved by 0.1.0 holds its generator's settings flat
+        self.generator_kwargs = {**migrate_generator_settings(self.__dict__), **self.generator_kwargs}
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         options = dict(seed=self.seed, device=self.device)
