@@ -8,7 +8,7 @@ from sb3_pride.human import WebTeacher
 from sb3_pride.pebble import PEBBLE
 from sb3_pride.pride import PRIDE
 
-__version__ = "0.2.0"
+__version__ = "0.3.0"
 
 register_envs()
 
