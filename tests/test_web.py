@@ -560,7 +560,9 @@ def answer_first_session(teacher: WebTeacher, run: Run, pairs: SegmentPairs) -> 
     while (shown := page.shown()) is not None:
         assert page.answer(shown, true_answer(pairs, find(teacher, shown).inputs)) == 200
     finish(thread, result)
-    assert teacher.quality.known and teacher.agreement()["anonymous"]["known_answers"] == 0  # none shown in session 1
+    assert (
+        teacher.quality.known and teacher.agreement()["anonymous"]["known_answers"] == 0
+    )  # none in the first feedback session
 
 
 def test_known_answer_questions_look_like_any_other_and_their_first_answer_counts(serve, tmp_path, monkeypatch):
