@@ -2,6 +2,7 @@
 person, several annotators with tokens, known answers, what other sites and malformed bodies may send), the state
 store, the quality checks and the settings. Real sockets: test_web_server.py; real browsers: test_web_browser.py."""
 
+import contextlib
 import io
 import json
 import logging
@@ -133,20 +134,29 @@ def no_mp4(monkeypatch) -> None:
     monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
 
 
-@pytest.fixture
-def serve(tmp_path):
-    """Makes WebTeachers that render black clips without an env, as if attached (no port: pages use the app)."""
-    teachers = []
+@contextlib.contextmanager
+def black_clip_teachers(clip_dir: Path):
+    """Makes WebTeachers that render black clips without an env, as if attached (no port: pages use the app); each is
+    closed at the end."""
+    made: list[WebTeacher] = []
 
     def make(**kwargs) -> WebTeacher:
-        teacher = WebTeacher(port=0, clip_dir=tmp_path / "clips", **kwargs)
+        teacher = WebTeacher(port=0, clip_dir=clip_dir, **kwargs)
         teacher.clips.renderer = FakeRenderer()
-        teachers.append(teacher)
+        made.append(teacher)
         return teacher
 
-    yield make
-    for teacher in teachers:
-        teacher.close()
+    try:
+        yield make
+    finally:
+        for teacher in made:
+            teacher.close()
+
+
+@pytest.fixture
+def serve(tmp_path):
+    with black_clip_teachers(tmp_path / "clips") as make:
+        yield make
 
 
 def wait(condition, timeout: float = 60.0):
@@ -560,9 +570,8 @@ def answer_first_session(teacher: WebTeacher, run: Run, pairs: SegmentPairs) -> 
     while (shown := page.shown()) is not None:
         assert page.answer(shown, true_answer(pairs, find(teacher, shown).inputs)) == 200
     finish(thread, result)
-    assert (
-        teacher.quality.known and teacher.agreement()["anonymous"]["known_answers"] == 0
-    )  # none in the first feedback session
+    # known pairs now, but none was shown in the first feedback session: none was known before it
+    assert teacher.quality.known and teacher.agreement()["anonymous"]["known_answers"] == 0
 
 
 def test_known_answer_questions_look_like_any_other_and_their_first_answer_counts(serve, tmp_path, monkeypatch):

@@ -8,7 +8,7 @@ import urllib.error
 import urllib.request
 
 import pytest
-from test_web import FakeBuffer, FakeEnv, FakeRenderer, Run, make_pairs, wait
+from test_web import FakeBuffer, FakeEnv, Run, black_clip_teachers, make_pairs, wait
 
 from sb3_pride.human import Question, Session, WebTeacher
 
@@ -18,18 +18,14 @@ pytest.importorskip("flask")
 @pytest.fixture
 def attached(tmp_path):
     """Makes WebTeachers attached to a stand-in env (black clips, no MuJoCo): their server serves on a free port."""
-    teachers = []
+    with black_clip_teachers(tmp_path / "clips") as make:
 
-    def make(**kwargs) -> WebTeacher:
-        teacher = WebTeacher(port=0, clip_dir=tmp_path / "clips", **kwargs)
-        teacher.clips.renderer = FakeRenderer()
-        teacher.attach(FakeEnv(), FakeBuffer())
-        teachers.append(teacher)
-        return teacher
+        def attach(**kwargs) -> WebTeacher:
+            teacher = make(**kwargs)
+            teacher.attach(FakeEnv(), FakeBuffer())
+            return teacher
 
-    yield make
-    for teacher in teachers:
-        teacher.close()
+        yield attach
 
 
 def get(url: str, body: bytes | None = None) -> int:
