@@ -156,8 +156,9 @@ def constructor_arguments(algo: str) -> set[str]:
 def algorithm_defaults(algo: str) -> dict[str, Any]:
     """
     The defaults of the algorithm's constructor arguments (PRIDE's ``generator_kwargs`` spelled out as the
-    generator's, and under ``option_settings`` the settings an option turned on with True takes): a run records them
-    beside the arguments it was given, so that what it ran stays known when a default changes.
+    generator's, PEBBLE's ``reward_kwargs``, ``query_kwargs`` and ``pretraining_kwargs`` as their parts', and under
+    ``option_settings`` the settings an option turned on with True takes): a run records them beside the arguments it
+    was given, so that what it ran stays known when a default changes.
     """
     defaults: dict[str, Any] = {}
     for p in reversed(constructor_parameters(algo)):  # a subclass's default overrides its parent's
@@ -168,7 +169,15 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
 
         parameters = inspect.signature(TransitionGenerator.__init__).parameters.values()
         defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
-    if algo != "sac":  # what True (or a dict leaving settings out) means for each option
+    if algo != "sac":  # the structured settings spelled out, and what True (or a partial dict) means for each option
+        from sb3_pride.common.queries import QuerySampler
+        from sb3_pride.common.reward_learner import RewardLearner
+        from sb3_pride.pebble.settings import PRETRAINING_DEFAULTS
+
+        parameters = inspect.signature(QuerySampler.__init__).parameters.values()
+        defaults["reward_kwargs"] = RewardLearner.settings()
+        defaults["query_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty and p.name != "selection"}
+        defaults["pretraining_kwargs"] = dict(PRETRAINING_DEFAULTS)
         options = algorithm_class(algo).option_settings  # type: ignore[attr-defined]
         defaults["option_settings"] = {name: dataclasses.asdict(cls()) for name, cls in options.items()}
     return defaults
