@@ -176,7 +176,9 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
 
         parameters = inspect.signature(QuerySampler.__init__).parameters.values()
         defaults["reward_kwargs"] = RewardLearner.settings()
-        defaults["query_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty and p.name != "selection"}
+        defaults["query_kwargs"] = {
+            p.name: p.default for p in parameters if p.default is not p.empty and p.name != "selection"
+        }
         defaults["pretraining_kwargs"] = dict(PRETRAINING_DEFAULTS)
         options = algorithm_class(algo).option_settings  # type: ignore[attr-defined]
         defaults["option_settings"] = {name: dataclasses.asdict(cls()) for name, cls in options.items()}
