@@ -129,6 +129,10 @@ def true_answer(pairs: SegmentPairs, inputs: np.ndarray) -> float:
     return float(returns[1] > returns[0])
 
 
+def label_or_skip(entry) -> float | str:
+    return "skip" if math.isnan(entry.label) else entry.label
+
+
 def no_mp4(monkeypatch) -> None:
     """Clips of three bytes: the tests that answer many questions need files, not video."""
     monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
@@ -504,7 +508,7 @@ def test_two_answers_per_query_are_averaged_and_undo_takes_back_ones_own(serve, 
     np.testing.assert_array_equal(finish(thread, result), [0.5, 0, 1])
     entries = run.journal.read()  # each answer its own entry, the undone ones removed
     pair = [query_id(inputs) for inputs in pairs.inputs]
-    assert [(entry.id, entry.annotator, _label(entry)) for entry in entries] == [
+    assert [(entry.id, entry.annotator, label_or_skip(entry)) for entry in entries] == [
         (pair[0], "ana", 1), (pair[0], "ben", 0), (pair[1], "ana", 0), (pair[1], "ben", "skip"), (pair[2], "ana", 1),
         (pair[2], "ben", 1),
     ]  # fmt: skip
@@ -718,7 +722,3 @@ def test_ask_from_a_worker_thread_renders_real_clips(tiny_kwargs, tmp_path):
     with av.open(str(tmp_path / "clips" / first.files[0])) as container:
         frames = [frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)]
     assert len(frames) == 10 and frames[0].shape == (24, 32, 3) and frames[0].std() > 5  # a picture, not a blank
-
-
-def _label(entry) -> float | str:
-    return "skip" if math.isnan(entry.label) else entry.label

@@ -1,7 +1,6 @@
 """WebTeacher in real headless Chromium during PEBBLE runs: a person's keys over two feedback sessions, and two
 annotators labeling one session together in two browsers."""
 
-import math
 import os
 import threading
 import time
@@ -9,7 +8,7 @@ import time
 import numpy as np
 import pytest
 from conftest import skip_unless
-from test_web import wait
+from test_web import label_or_skip, wait
 
 from sb3_pride import PEBBLE
 from sb3_pride.common.journal import PreferenceJournal
@@ -127,12 +126,8 @@ def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwa
     entries = PreferenceJournal(journal).read()
     assert len(entries) == 4 and len({entry.id for entry in entries}) == 4  # no query answered twice
     assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
-    by_annotator = {name: [_label(e) for e in entries if e.annotator == name] for name in ("ana", "ben")}
+    by_annotator = {name: [label_or_skip(e) for e in entries if e.annotator == name] for name in ("ana", "ben")}
     assert by_annotator["ana"][0] == 1 and by_annotator["ben"][:2] == [0.5, "skip"]  # ana's undo took back her "left"
-
-
-def _label(entry) -> float | str:
-    return "skip" if math.isnan(entry.label) else entry.label
 
 
 def _playing(driver) -> str | None:
