@@ -95,6 +95,10 @@ class WebTeacher(InteractiveTeacher):
     ``annotators``, nobody is shown a known pair they answered (nor a majority they were part of); one person alone is
     shown true-reward pairs of earlier sessions again.
 
+    The teacher holds its settings and hands the work to its parts, public attributes made with it (and anew when a
+    saved model is loaded): ``store`` (``AnswerStore``), ``quality`` (``Quality``), ``clips`` (``Clips``) and
+    ``server`` (``WebServer``, whose ``app`` is the page's Flask app, ``create_app``).
+
     :param port: the TCP port of the page (0: any free port, read it back from ``.port``)
     :param host: the address to bind: 127.0.0.1 (this machine only; use ssh port forwarding from another one), or
         e.g. 0.0.0.0 (every interface: needs ``annotators``)
