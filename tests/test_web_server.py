@@ -1,16 +1,15 @@
 """WebTeacher's server on a real port of this machine: what only a socket shows (the links printed when it starts,
-the console's masked tokens, the read timeout, a body streamed in chunks)."""
+the console's masked tokens, the read timeout). Everything else of HTTP is tested through the app's test client."""
 
-import json
 import socket
 import time
 import urllib.error
 import urllib.request
 
 import pytest
-from test_web import FakeBuffer, FakeEnv, Run, black_clip_teachers, make_pairs, wait
+from test_web import FakeBuffer, FakeEnv, black_clip_teachers
 
-from sb3_pride.human import Question, Session, WebTeacher
+from sb3_pride.human import WebTeacher
 
 pytest.importorskip("flask")
 
@@ -83,20 +82,3 @@ def test_a_half_sent_request_is_dropped_after_the_read_timeout(attached):
         answer, took = exchange(teacher.port, half)
         assert 0.4 < took < 5 and not answer.startswith(b"HTTP/1.1 200"), (half, answer, took)
     assert get(teacher.url + "api/state") == 200  # the server goes on
-
-
-def test_a_chunked_body_past_64_kib_is_refused(attached, tmp_path):
-    """Streamed in chunks (no Content-Length), a padded answer is refused whole, not cut at 64 KiB and taken."""
-    teacher = attached()
-    run = Run(tmp_path / "preferences.jsonl")
-    queries = [Question("a", make_pairs(1).inputs[0], ready=True)]
-    teacher.store.begin(Session(1, queries, 0, run.context()))
-    assert teacher.state()["query"]["id"] == "a"
-    body = b'{"id": "a", "label": 1}' + b" " * 70_000
-    chunks = b"".join(b"%x\r\n%s\r\n" % (len(part), part) for part in (body[:40_000], body[40_000:])) + b"0\r\n\r\n"
-    head = (
-        b"POST /api/answer HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\n"
-    )
-    answer, _ = exchange(teacher.port, head + chunks)
-    assert answer.startswith(b"HTTP/1.1 413") and json.loads(answer.split(b"\r\n\r\n", 1)[1])["error"], answer[:200]
-    assert run.journal.read() == [] and wait(lambda: teacher.state()["answered"] == 0)

@@ -26,6 +26,8 @@ if TYPE_CHECKING:
 
 #: the largest body a ``POST`` may carry: an answer is a few bytes
 MAX_BODY = 64 * 1024
+#: the HTTP status of each reason the store refuses an answer or an undo for (``Refused.reason``)
+REFUSAL_STATUS = {"malformed": 400, "not shown": 403, "unknown": 404, "conflict": 409}
 #: what a request without a valid token is told
 NO_TOKEN = "this needs an annotator's token: open your personal link (…/?token=…) from whoever runs the training"
 
@@ -85,7 +87,7 @@ def guard_requests(app: "Flask", tokens: Mapping[str, str]) -> None:
 
     @app.errorhandler(Refused)
     def refusal(error: Refused) -> Any:
-        return error_response(error.status, str(error))
+        return error_response(REFUSAL_STATUS[error.reason], str(error))
 
     @app.errorhandler(Exception)
     def server_error(error: Exception) -> Any:  # a bug, or a journal that cannot be written: the page says so

@@ -13,26 +13,23 @@ from sb3_pride.common.teachers import FeedbackContext
 
 #: the answers the page may send: μ = P[right segment preferred]; None is a skip
 ALLOWED_LABELS = (0.0, 0.5, 1.0, None)
-#: why the store refuses an answer or an undo (``Refused.reason``), and the HTTP status the page is given for each
-REASONS = {"malformed": 400, "not shown": 403, "unknown": 404, "conflict": 409}
+#: why the store refuses an answer or an undo (``Refused.reason``)
+REASONS = ("malformed", "not shown", "unknown", "conflict")
 
 
 class Refused(Exception):
     """
     An answer or an undo that the store refuses: nothing was recorded.
 
-    :param reason: a key of ``REASONS`` (``"malformed"``, ``"not shown"``, ``"unknown"`` or ``"conflict"``)
+    :param reason: one of ``REASONS``: a malformed label or id, a question not shown to the annotator, one not in the
+        open session, or a conflict (no open session, answered already, all answers given, nothing to undo)
     :param message: what the person is told
     """
 
     def __init__(self, reason: str, message: str):
+        assert reason in REASONS, reason
         super().__init__(message)
         self.reason = reason
-
-    @property
-    def status(self) -> int:
-        """The HTTP status of the refusal (``REASONS``)."""
-        return REASONS[self.reason]
 
 
 def clip_urls(question_id: str) -> tuple[str, str]:

@@ -26,6 +26,7 @@ import numpy as np
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.render_states import enable_render_states
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, register_teacher
+from sb3_pride.human.app import REFUSAL_STATUS
 from sb3_pride.human.clips import Clips
 from sb3_pride.human.quality import (
     FLAG_BELOW,
@@ -35,7 +36,7 @@ from sb3_pride.human.quality import (
     MIN_RETURN_SCALE,
     Quality,
 )
-from sb3_pride.human.questions import Question, Session
+from sb3_pride.human.questions import Question, Refused, Session
 from sb3_pride.human.render import use_headless_gl
 from sb3_pride.human.server import WebServer
 from sb3_pride.human.settings import (
@@ -50,7 +51,7 @@ from sb3_pride.human.settings import (
     default_instructions,
     is_local,
 )
-from sb3_pride.human.store import ALLOWED_LABELS, QUEUE_LENGTH, RELEASE_AFTER, AnswerStore, Refused
+from sb3_pride.human.store import ALLOWED_LABELS, QUEUE_LENGTH, RELEASE_AFTER, AnswerStore
 
 if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
@@ -336,7 +337,7 @@ class WebTeacher(InteractiveTeacher):
         try:
             self.store.answer(question_id, label, annotator)
         except Refused as refusal:
-            return refusal.status, str(refusal)
+            return REFUSAL_STATUS[refusal.reason], str(refusal)
         return 200, "recorded"
 
     def undo(self, annotator: str | None = None) -> tuple[int, str]:
@@ -351,7 +352,7 @@ class WebTeacher(InteractiveTeacher):
         try:
             return 200, self.store.undo(annotator)
         except Refused as refusal:
-            return refusal.status, str(refusal)
+            return REFUSAL_STATUS[refusal.reason], str(refusal)
 
 
 _shared: WebTeacher | None = None
