@@ -4,9 +4,10 @@ synchronously or in a thread of its own, take the answers in once they are all g
 """
 
 import threading
+import warnings
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -68,6 +69,90 @@ def check_labels(answer: object, n_pairs: int) -> np.ndarray:
     if np.any((finite < 0) | (finite > 1)):
         raise ValueError("teacher labels must be in [0, 1] (P[second segment preferred]) or NaN (skipped)")
     return labels
+
+
+#: the named feedback schedules (``FeedbackSchedule``)
+FEEDBACK_SCHEDULES = ("constant", "shrinking", "growing")
+
+
+class FeedbackSchedule:
+    """
+    How many queries each feedback session asks, before the cut to what remains of the budget: the label schedule.
+
+    - "constant": K every session (PEBBLE);
+    - "shrinking": B-Pref's ``reward_schedule=1``, K · (T − t) / T at step t of a run of T steps (``learn()``'s
+      ``total_timesteps``): the budget front-loaded, its tail thinning, so that r̂ goes on learning later in the run;
+    - "growing": B-Pref's ``reward_schedule=2``, K · T / (T − t + 1);
+    - a sequence of positive ints: the sizes of the first sessions, one each (K for every session after them).
+
+    Sizes are truncated to an int, as B-Pref's, and at least 1.
+
+    :param schedule: one of ``FEEDBACK_SCHEDULES`` or a sequence of session sizes
+    :param queries_per_session: K
+    """
+
+    def __init__(self, schedule: "str | Sequence[int]", queries_per_session: int):
+        if isinstance(schedule, str):
+            if schedule not in FEEDBACK_SCHEDULES:
+                raise ValueError(
+                    f"feedback_schedule must be one of {FEEDBACK_SCHEDULES} or a list of session sizes, got {schedule!r}"
+                )
+        elif not (
+            isinstance(schedule, (list, tuple))
+            and len(schedule) > 0
+            and all(isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n > 0 for n in schedule)
+        ):
+            raise ValueError(f"feedback_schedule: a list of session sizes must hold positive ints, got {schedule!r}")
+        self.schedule = schedule if isinstance(schedule, str) else tuple(int(n) for n in schedule)
+        self.queries_per_session = queries_per_session
+
+    def size(self, session: int, step: int, total_steps: int) -> int:
+        """Queries of feedback session ``session`` (1 for the first) published at env step ``step`` of ``total_steps``."""
+        k, schedule = self.queries_per_session, self.schedule
+        if isinstance(schedule, tuple):
+            return schedule[session - 1] if session <= len(schedule) else k
+        if schedule == "shrinking":
+            return max(1, int(k * max(total_steps - step, 0) / max(total_steps, 1)))
+        if schedule == "growing":
+            return max(1, int(k * total_steps / max(total_steps - step + 1, 1)))
+        return k
+
+    def plan(self, session: int, step: int, interval: int, total_steps: int, remaining: int) -> list[tuple[int, int]]:
+        """
+        ``(step, queries)`` of the sessions still to come in a run of ``total_steps``, the next being ``session`` at
+        ``step`` and one every ``interval`` steps after it while ``remaining`` queries of the budget are left (a
+        session whose episodes hold no segment yet, or whose answers are late, comes later than planned).
+        """
+        planned = []
+        while remaining > 0 and step < total_steps:
+            queries = min(self.size(session, step, total_steps), remaining)
+            planned.append((step, queries))
+            remaining, session, step = remaining - queries, session + 1, step + interval
+        return planned
+
+    def check(self, session: int, step: int, interval: int, total_steps: int, remaining: int) -> None:
+        """``check_plan`` of the ``plan()`` of a run of ``total_steps``: is the budget asked within it?"""
+        check_plan(self.plan(session, step, interval, total_steps, remaining), remaining, self.schedule)
+
+
+def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Sequence[int]") -> None:
+    """
+    A run whose planned sessions cannot ask the budget: refused for a schedule that was chosen (``feedback_schedule``
+    other than "constant"), a warning for the constant one (PEBBLE's runs that stop before their budget is asked).
+    """
+    asked = sum(queries for _, queries in plan)
+    if asked >= remaining:
+        return
+    message = (
+        f"the budget cannot be asked within the run: {remaining} queries remain of max_feedback, but the sessions "
+        f"planned before learn()'s total_timesteps ask {asked} ({len(plan)} sessions"
+        + (f", the last at step {plan[-1][0]})" if plan else ")")
+        + "; lengthen the run, shorten feedback_interval or give a larger queries_per_session or schedule"
+    )
+    if schedule == "constant":
+        warnings.warn(message, stacklevel=4)
+    else:
+        raise ValueError(f"feedback_schedule={schedule!r}: {message}")
 
 
 class FeedbackLoop:

@@ -1,6 +1,6 @@
 import os
 import time
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -15,7 +15,6 @@ from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedul
 from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
-from sb3_pride.common.consistency import DynamicsConsistency
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.env_checks import check_env
 from sb3_pride.common.journal import JournalBook, atomic_write_path
@@ -23,11 +22,16 @@ from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import OPTION_SETTINGS, ReplayRewards, RewardLearner
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import InteractiveTeacher, Teacher
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option, seeded
+from sb3_pride.common.utils import check_positive_ints, seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
-from sb3_pride.pebble.feedback import FeedbackLoop
+from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
 from sb3_pride.pebble.migration import migrate_parameters, migrate_saved_model
-from sb3_pride.pebble.settings import check_sac_arguments, preference_settings
+from sb3_pride.pebble.settings import (
+    check_feedback_settings,
+    check_reloaded_consistency,
+    check_sac_arguments,
+    preference_settings,
+)
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 
@@ -38,13 +42,12 @@ class PEBBLE(SAC):
     (Lee, Smith & Abbeel, ICML 2021), the preference-based SAC that PRIDE builds on
     (Feng et al., 2025, §3.3 and Algorithm 1 without its diffusion lines).
 
-    The environment's reward never reaches SAC: it is kept beside the replay buffer for the teacher and for
-    reporting (Monitor, EvalCallback and ``rollout/ep_rew_mean`` still show the true return). SAC learns from r̂
-    (``RewardLearner``: an ensemble trained on the teacher's preferences between segment pairs, Bradley–Terry, Eqs.
-    1–2), every stored reward relabeled after each reward update. Before the first feedback, after
-    ``learning_starts`` random steps, SAC is pre-trained for ``unsupervised_steps`` on the k-NN state-entropy reward
-    (Eq. 3); the critic is then reset and trained on r̂. The parts: a ``FeedbackLoop`` (the teacher's side of a
-    session), a ``QuerySampler``, a ``RewardLearner`` and the ``ReplayRewards`` the replay buffer asks.
+    The environment's reward never reaches SAC (Monitor and EvalCallback still report it): SAC learns from r̂ (a
+    ``RewardLearner``: an ensemble trained on the teacher's preferences between segment pairs, Bradley–Terry, Eqs.
+    1–2), every stored reward relabeled after each reward update. After ``learning_starts`` random steps, SAC is
+    pre-trained for ``unsupervised_steps`` on the k-NN state-entropy reward (Eq. 3); at the first feedback the critic
+    is reset and trained on r̂. The parts: a ``FeedbackLoop`` (the teacher's side of a session), a ``QuerySampler``,
+    a ``RewardLearner`` and the ``ReplayRewards`` the replay buffer asks.
 
     Parameters not listed here are SAC's, with the same meaning and defaults except ``learning_starts``
     (PEBBLE: 1000) and ``n_steps``, which must stay 1 (n-step sums of rewards that relabeling rewrites).
@@ -55,6 +58,8 @@ class PEBBLE(SAC):
     :param max_feedback: Q, the total query budget
     :param feedback_interval: M, env steps between feedback sessions
     :param queries_per_session: K, queries asked per session (the last session is cut to the budget)
+    :param feedback_schedule: the label schedule (``FeedbackSchedule``): "constant" (K each session), B-Pref's
+        "shrinking" or "growing" (K scaled by the step within ``learn()``'s run), or a list of the first sessions' sizes
     :param segment_length: steps per segment (PEBBLE: 50); a segment never crosses an episode end
     :param query_selection: how the K queries are picked among random candidate pairs (``QuerySampler``'s
         ``selection``: "uniform", "disagreement", "entropy", "kcenter", ...); the first session is always uniform
@@ -118,6 +123,7 @@ class PEBBLE(SAC):
         max_feedback: int = 1000,
         feedback_interval: int = 20_000,
         queries_per_session: int = 100,
+        feedback_schedule: str | Sequence[int] = "constant",
         segment_length: int = 50,
         query_selection: str = "disagreement",
         unsupervised_steps: int = 9000,
@@ -130,10 +136,7 @@ class PEBBLE(SAC):
         **renamed_settings: Any,
     ):
         check_positive_ints(max_feedback=max_feedback, feedback_interval=feedback_interval)
-        check_positive_ints(queries_per_session=queries_per_session)
-        check_non_negative_ints(unsupervised_steps=unsupervised_steps)
-        if not isinstance(asynchronous_feedback, (bool, np.bool_)):
-            raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
+        check_feedback_settings(queries_per_session, feedback_schedule, unsupervised_steps, asynchronous_feedback)
         check_sac_arguments(n_steps, gradient_steps, replay_buffer_class, self.buffer_class)
         settings = preference_settings(
             renamed_settings, segment_length, query_selection, reward_kwargs, query_kwargs, pretraining_kwargs
@@ -157,7 +160,7 @@ class PEBBLE(SAC):
         )  # fmt: skip
         self.teacher = teacher  # as given: a registered name stays a name, so that rl-zoo3 can pass it again on resume
         self.max_feedback, self.feedback_interval = max_feedback, feedback_interval
-        self.queries_per_session = queries_per_session
+        self.queries_per_session, self.feedback_schedule = queries_per_session, feedback_schedule
         self.segment_length, self.query_selection = segment_length, query_selection
         self.unsupervised_steps, self.asynchronous_feedback = unsupervised_steps, bool(asynchronous_feedback)
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
@@ -187,6 +190,7 @@ class PEBBLE(SAC):
             self.reward_learner.label_selection = carried
         self.reward_model = self.reward_learner.ensemble
         self.query_sampler = QuerySampler(self.segment_length, self.query_selection, **self.query_kwargs)
+        self.label_schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
         included = self.__dict__.pop("migrated_journal_entries", self.feedback.journal.included)
@@ -213,16 +217,7 @@ class PEBBLE(SAC):
         """
         if "reward_kwargs" in kwargs:
             saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-            migrate_saved_model(saved := saved or {})
-            was, now = (
-                make_option("dynamics_consistency", value.get("dynamics_consistency", False), DynamicsConsistency)
-                for value in (saved.get("reward_kwargs") or {}, kwargs["reward_kwargs"] or {})
-            )
-            if (was is None) != (now is None) or (was is not None and now is not None and was.optimizer != now.optimizer):
-                raise ValueError(
-                    f"reward_kwargs: the model at {path} was saved with dynamics_consistency={was}, and loading cannot "
-                    f"turn it on or off nor change its optimizer (got {now}); leave dynamics_consistency out"
-                )
+            check_reloaded_consistency(path, saved or {}, kwargs["reward_kwargs"])
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         if env is not None and model.env is not None:
             check_env(model.env, model.segment_length, model.verbose)
@@ -290,6 +285,11 @@ class PEBBLE(SAC):
                      tb_log_name: str = "run", progress_bar: bool = False) -> tuple[int, BaseCallback]:  # fmt: skip
         if reset_num_timesteps and self.num_timesteps > 0:
             self._shift_schedules(-self.num_timesteps)  # the step count restarts at 0: keep the remaining distances
+        if reset_num_timesteps:  # a whole run: its budget must be asked within it (a run in parts is not checked)
+            remaining = self.max_feedback - self.feedback_asked
+            self.label_schedule.check(
+                self.feedback_sessions + 1, self.next_feedback_step, self.feedback_interval, total_timesteps, remaining
+            )
         if reset_num_timesteps or self._last_obs is None:
             # SB3 resets the env now: the episode in progress ends here, or a query segment could span two episodes
             self.real_buffer.end_episodes()
@@ -314,8 +314,8 @@ class PEBBLE(SAC):
     # a feedback session (Algorithm 1, lines 6–21) ------------------------------------------------------------------
     def publish_queries(self, asynchronous: bool | None = None) -> bool:
         """
-        Open a feedback session: choose its ``min(queries_per_session, max_feedback - asked)`` queries and give them to
-        the teacher (``FeedbackLoop.publish``); the journal's answers of this session are not asked again.
+        Open a feedback session: choose its queries (as many as ``feedback_schedule`` says, at most what remains of
+        ``max_feedback``) and give them to the teacher (``FeedbackLoop.publish``); none the journal holds is asked again.
 
         :param asynchronous: True: the teacher answers in a thread of its own and this returns at once; False: it
             returns once the teacher has answered; None: ``asynchronous_feedback``
@@ -324,9 +324,10 @@ class PEBBLE(SAC):
         self.feedback.resolve(self.teacher, self.seed)
         sampler, session = self.query_sampler, self.feedback_sessions + 1
         returns, labeled = self.reward_model.member_segment_returns, self.preferences.inputs
+        size = self.label_schedule.size(session, self.num_timesteps, self._total_timesteps)
         return self.feedback.publish(
             self.feedback.context(session, self.feedback_asked, self.max_feedback),
-            n_queries=min(self.queries_per_session, self.max_feedback - self.feedback_asked),
+            n_queries=min(size, self.max_feedback - self.feedback_asked),
             choose=lambda n, asked: sampler.choose(
                 self.real_buffer, n, self.preference_rng, returns, labeled, asked, first=session == 1
             ),
@@ -432,7 +433,7 @@ class PEBBLE(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         # the parts are made again from the settings; the networks are saved as state dicts
-        return [*super()._excluded_save_params(), "reward_model", "query_sampler", "replay_rewards"]
+        return [*super()._excluded_save_params(), "reward_model", "query_sampler", "label_schedule", "replay_rewards"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()

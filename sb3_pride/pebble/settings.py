@@ -5,10 +5,12 @@ from typing import Any
 import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 
+from sb3_pride.common.consistency import DynamicsConsistency
 from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import RewardLearner
-from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
-from sb3_pride.pebble.migration import move_renamed_settings
+from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option
+from sb3_pride.pebble.feedback import FeedbackSchedule
+from sb3_pride.pebble.migration import migrate_saved_model, move_renamed_settings
 
 #: ``pretraining_kwargs``: k of the k-NN state entropy (PEBBLE: 5), gradient steps on r̂ after the critic reset (100)
 PRETRAINING_DEFAULTS = {"entropy_k": 5, "critic_reset_updates": 100}
@@ -39,6 +41,36 @@ def preference_settings(
     check_positive_ints(entropy_k=pretraining["entropy_k"])
     check_non_negative_ints(critic_reset_updates=pretraining["critic_reset_updates"])
     return structured
+
+
+def check_feedback_settings(
+    queries_per_session: Any, feedback_schedule: Any, unsupervised_steps: Any, asynchronous_feedback: Any
+) -> None:
+    """K a positive int, a label schedule ``FeedbackSchedule`` takes, pre-training steps >= 0, True or False."""
+    check_positive_ints(queries_per_session=queries_per_session)
+    FeedbackSchedule(feedback_schedule, queries_per_session)
+    check_non_negative_ints(unsupervised_steps=unsupervised_steps)
+    if not isinstance(asynchronous_feedback, (bool, np.bool_)):
+        raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
+
+
+def check_reloaded_consistency(path: Any, saved: dict[str, Any], reward_kwargs: dict[str, Any] | None) -> None:
+    """
+    ``reward_kwargs`` given to ``load()`` may change REED's ``dynamics_consistency`` settings but not turn it on or off
+    (its heads are saved with the model) nor change its optimizer (whose state is saved too).
+
+    :param saved: the saved model's attributes (``load_from_zip_file``'s data)
+    """
+    migrate_saved_model(saved)
+    was, now = (
+        make_option("dynamics_consistency", value.get("dynamics_consistency", False), DynamicsConsistency)
+        for value in (saved.get("reward_kwargs") or {}, reward_kwargs or {})
+    )
+    if (was is None) != (now is None) or (was is not None and now is not None and was.optimizer != now.optimizer):
+        raise ValueError(
+            f"reward_kwargs: the model at {path} was saved with dynamics_consistency={was}, and loading cannot turn it "
+            f"on or off nor change its optimizer (got {now}); leave dynamics_consistency out"
+        )
 
 
 def check_sac_arguments(
