@@ -237,8 +237,7 @@ class PEBBLE(SAC):
         return self.feedback_sessions == 0
 
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        # QPA's hybrid replay: after pre-training and while queries remain to be asked, a share of each minibatch
-        # comes from the episodes the queries come from
+        # QPA's hybrid replay: after pre-training and while queries remain, a share of each minibatch from their episodes
         share = self.query_sampler.hybrid_replay
         hybrid = share > 0 and not self.in_pretraining and self.feedback_asked < self.max_feedback
         rows = self.query_sampler.recent_rows(self.real_buffer) if hybrid else None
