@@ -20,8 +20,8 @@ from sb3_pride import PEBBLE, WebTeacher
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 TINY = dict(
     learning_starts=100, unsupervised_steps=100, feedback_interval=10**6, max_feedback=4, queries_per_session=4,
-    segment_length=50, batch_size=64, reward_net_arch=(32, 32), reward_epochs=5, critic_reset_updates=5,
-    policy_kwargs=dict(net_arch=[32, 32]),
+    segment_length=50, batch_size=64, reward_kwargs=dict(net_arch=(32, 32), epochs=5),
+    pretraining_kwargs=dict(critic_reset_updates=5), policy_kwargs=dict(net_arch=[32, 32]),
 )  # fmt: skip
 #: the question the page shows, once its clips play (None before)
 PLAYING = (
