@@ -161,7 +161,7 @@ class PreferenceReplayBuffer(ReplayBuffer):
         return concatenate_samples(recent, super().sample(batch_size - n_recent, env=env))
 
     def stored_observations(self, env: VecNormalize | None = None) -> np.ndarray:
-        """Every stored observation, as the policy sees them (normalized under ``VecNormalize``): (n, *obs_shape)."""
+        """Every stored observation, as the policy sees them (normalized under ``VecNormalize``): ``(n, *obs_shape)``."""
         observations = self._normalize_obs(self.observations[: self.size()].reshape(-1, *self.obs_shape), env)
         assert isinstance(observations, np.ndarray)  # flat Box observations (PEBBLE checks the env)
         return observations

@@ -3,6 +3,7 @@
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch as th
@@ -252,6 +253,14 @@ class QuerySampler:
     :param hybrid_replay: QPA's hybrid experience replay (Hu et al., ICLR 2024): this share of each SAC minibatch is
         drawn from the ``max_query_episodes`` most recent episodes while queries remain to be asked (0: uniform)
     """
+
+    @classmethod
+    def from_settings(cls, segment_length: int, selection: str, query_kwargs: Any) -> "QuerySampler":
+        """A sampler of PEBBLE's ``query_kwargs``; a dict of other entries is refused, naming ``query_kwargs``."""
+        taken = ("candidates_multiplier", "max_query_episodes", "hybrid_replay")
+        if not isinstance(query_kwargs, dict) or set(query_kwargs) - set(taken):
+            raise ValueError(f"query_kwargs must be a dict of QuerySampler's settings {list(taken)}, got {query_kwargs!r}")
+        return cls(segment_length, selection, **query_kwargs)
 
     def __init__(
         self,

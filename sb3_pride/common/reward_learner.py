@@ -249,6 +249,7 @@ class ReplayRewards:
         self.recent_rows, self.recent_share = recent_rows, recent_share if recent_rows is not None else 0.0
 
     def new_rewards(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
+        """r̂ of transitions being added, or 0 before r̂ has learned from labels (the first relabel overwrites it)."""
         if not self.learned:
             return np.zeros(len(observations), dtype=np.float32)
         return self.learner.predict(observations, actions)
@@ -256,6 +257,7 @@ class ReplayRewards:
     def rewrite(
         self, samples: ReplayBufferSamples, buffer: PreferenceReplayBuffer, env: VecNormalize | None
     ) -> ReplayBufferSamples:
+        """A sampled minibatch with SAC's rewards: r_int while pre-training, else r̂ (plus RUNE's bonus where it is on)."""
         if self.pretraining:
             # the critic target uses r_int(s) (Eq. 3), computed in the space the policy sees
             stored = buffer.to_torch(buffer.stored_observations(env), copy=False)

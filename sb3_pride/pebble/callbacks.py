@@ -15,9 +15,9 @@ class FeedbackCallback(BaseCallback):
     its answers taken in (``PEBBLE.take_answers()``: label, learn r̂, relabel) at once, or, with
     ``asynchronous_feedback``, at the first step after the teacher has answered, training going on meanwhile; the next
     session is not published before. The first one ends pre-training (``PEBBLE.end_pretraining()``: critic reset and
-    ``critic_reset_updates`` steps on r̂); until then SAC learns from the state-entropy reward. When no segment fits in
-    the stored episodes yet, the session is tried again a segment later. A session still open when ``learn()`` ends is
-    waited for.
+    ``pretraining_kwargs["critic_reset_updates"]`` steps on r̂); until then SAC learns from the state-entropy reward.
+    When no segment fits in the stored episodes yet, the session is tried again a segment later. A session still
+    open when ``learn()`` ends is waited for.
     """
 
     model: "PEBBLE"

@@ -110,7 +110,7 @@ class FeedbackSchedule:
         """Queries of feedback session ``session`` (1 for the first) published at env step ``step`` of ``total_steps``."""
         k, schedule = self.queries_per_session, self.schedule
         if isinstance(schedule, tuple):
-            return schedule[session - 1] if session <= len(schedule) else k
+            return schedule[:session][-1] if session <= len(schedule) else k  # sessions count from 1
         if schedule == "shrinking":
             return max(1, int(k * max(total_steps - step, 0) / max(total_steps, 1)))
         if schedule == "growing":
@@ -170,7 +170,9 @@ class FeedbackLoop:
         self.journal = journal
         #: (name, teacher) of a teacher given by name (a scripted one is saved with its random state)
         self.named_teacher: tuple[str, Teacher | InteractiveTeacher] | None = None
+        #: the teacher object (``resolve()``)
         self.teacher: Teacher | InteractiveTeacher | None = None
+        #: the published session whose answers are awaited (None: no session is open); never saved
         self.pending: PendingFeedback | None = None
         self._records: deque[tuple[str, float]] = deque()  # what the teacher asked to log (thread-safe appends)
 

@@ -189,7 +189,7 @@ class PEBBLE(SAC):
         if carried is not None and self.reward_learner.label_selection is not None:
             self.reward_learner.label_selection = carried
         self.reward_model = self.reward_learner.ensemble
-        self.query_sampler = QuerySampler(self.segment_length, self.query_selection, **self.query_kwargs)
+        self.query_sampler = QuerySampler.from_settings(self.segment_length, self.query_selection, self.query_kwargs)
         self.label_schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)

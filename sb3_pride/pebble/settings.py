@@ -32,7 +32,7 @@ def preference_settings(
     structured = move_renamed_settings(
         renamed, dict(reward_kwargs=reward_kwargs, query_kwargs=query_kwargs, pretraining_kwargs=pretraining_kwargs)
     )
-    QuerySampler(segment_length, query_selection, **structured["query_kwargs"])
+    QuerySampler.from_settings(segment_length, query_selection, structured["query_kwargs"])
     RewardLearner.check_kwargs(structured["reward_kwargs"], segment_length)
     unknown = sorted(set(structured["pretraining_kwargs"]) - set(PRETRAINING_DEFAULTS))
     if unknown:

@@ -1,0 +1,94 @@
+"""The label schedule: how a budget of queries is spread over a run's feedback sessions (``feedback_schedule``)."""
+
+import warnings
+
+import pytest
+from stable_baselines3.common.callbacks import BaseCallback
+
+from sb3_pride import PEBBLE
+from sb3_pride.pebble.feedback import FeedbackSchedule
+
+
+def test_each_schedule_sizes_its_sessions_as_b_pref_does():
+    constant, shrinking, growing = (FeedbackSchedule(name, 50) for name in ("constant", "shrinking", "growing"))
+    assert [constant.size(i, step, 50_000) for i, step in ((1, 5000), (2, 10_000))] == [50, 50]
+    # B-Pref's reward_schedule 1 and 2: int(K (T - t) / T) and int(K T / (T - t + 1))
+    assert [shrinking.size(1, step, 50_000) for step in (5000, 25_000, 49_999, 50_000)] == [45, 25, 1, 1]
+    assert [growing.size(1, step, 50_000) for step in (0, 25_000, 45_000)] == [49, 99, 499]
+    listed = FeedbackSchedule([100, 30], 50)
+    assert [listed.size(i, 0, 50_000) for i in (1, 2, 3, 4)] == [100, 30, 50, 50]
+
+
+def test_a_shrinking_schedule_spreads_half_the_labels_with_a_thinning_tail():
+    """200 labels, K = 50 every 5k steps from 5k in a 50k-step run: asked until 35k instead of 20k."""
+    plan = FeedbackSchedule("shrinking", 50).plan(1, 5000, 5000, 50_000, 200)
+    assert plan == [(5000, 45), (10_000, 40), (15_000, 35), (20_000, 30), (25_000, 25), (30_000, 20), (35_000, 5)]
+    constant = FeedbackSchedule("constant", 50).plan(1, 5000, 5000, 50_000, 200)
+    assert constant[-1] == (20_000, 50) and sum(n for _, n in constant) == 200
+
+
+class SessionSizes(BaseCallback):
+    """The queries each feedback session asked, read from the model's counters."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.sizes: list[int] = []
+        self.asked = 0
+
+    def _on_step(self) -> bool:
+        if self.model.feedback_asked != self.asked:
+            self.sizes.append(self.model.feedback_asked - self.asked)
+            self.asked = self.model.feedback_asked
+        return True
+
+
+@pytest.mark.slow
+def test_a_run_asks_the_sessions_its_schedule_lists(tiny_kwargs):
+    sizes = SessionSizes()
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule=[30, 20], **tiny_kwargs)  # budget 60, K 20
+    model.learn(1000, callback=sizes)  # sessions at steps 300, 600, 900
+    assert sizes.sizes == [30, 20, 10]  # the third is K = 20, cut to what remains of the budget
+    assert model.feedback_asked == model.max_feedback == 60
+
+
+@pytest.mark.slow
+def test_a_schedule_that_cannot_ask_the_budget_within_the_run_is_refused_before_training(tiny_kwargs, tmp_path):
+    journal = tmp_path / "preferences.jsonl"
+    model = PEBBLE(
+        "MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule="shrinking", preference_journal=journal, **tiny_kwargs
+    )
+    # a 1500-step run: sessions at 300, 600, 900 and 1200 ask 16 + 12 + 8 + 4 = 40 of the 60
+    with pytest.raises(
+        ValueError, match=r"feedback_schedule='shrinking': the budget cannot be asked within the run: 60 .* ask 40"
+    ):
+        model.learn(1500)
+    assert model.num_timesteps == 0 and model.feedback_asked == 0 and not journal.exists()
+    # long enough: sessions at 300, 600, 900 and 1200 ask 19 + 18 + 17 + 6 of a 6000-step run
+    assert sum(n for _, n in model.label_schedule.plan(1, 300, 300, 6000, 60)) == 60
+    model.learn(1300, reset_num_timesteps=False)  # a run in parts is not checked: it asks as its schedule says
+    assert model.feedback_asked == 15 + 10 + 6 + 1  # int(20 (1300 - t) / 1300) at t = 300, 600, 900, 1200
+
+
+@pytest.mark.slow
+def test_the_constant_schedule_warns_when_the_run_ends_before_its_budget(tiny_kwargs):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    with pytest.warns(UserWarning, match="the budget cannot be asked within the run: 60 .* ask 40"):
+        model.learn(700)  # sessions at 300 and 600 only
+    assert model.feedback_asked == 40
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a run in parts is not checked: its later parts may ask the rest
+        model.learn(300, reset_num_timesteps=False)
+    assert model.feedback_asked == 60
+
+
+@pytest.mark.parametrize("schedule", ["linear", [], [10, 0], [10, 2.5], [True], None])
+def test_a_bad_schedule_is_refused_naming_it(tiny_kwargs, schedule):
+    with pytest.raises(ValueError, match="feedback_schedule"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", feedback_schedule=schedule, **tiny_kwargs)
+
+
+def test_the_schedule_is_saved_with_the_model(tiny_kwargs, tmp_path):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", feedback_schedule=[30, 20], **tiny_kwargs)
+    model.save(tmp_path / "model")
+    loaded = PEBBLE.load(tmp_path / "model")
+    assert list(loaded.feedback_schedule) == [30, 20] and loaded.label_schedule.size(1, 0, 1) == 30
