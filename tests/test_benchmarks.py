@@ -328,14 +328,15 @@ def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(gr
     makes the same configuration, and a variant label means what the committed table's runs were."""
     mismatches = []
     for path in sorted((ROOT / "benchmarks" / "grids").glob("*.yml")):
-        for spec in grid.expand(grid.load_grid(path)):
+        spec_grid = grid.load_grid(path)
+        for spec in grid.expand(spec_grid):
             _, kwargs = grid.run.yaml_entry(spec["tier"], spec["algo"], spec["task"])
             kwargs = grid.run.merge(kwargs, spec["overrides"])
             if spec["algo"] != "sac":
                 kwargs["max_feedback"] = spec["feedback"]
             if spec["algo"] == "pride":
                 kwargs["synthetic_ratio"] = spec["ratio"]
-            settings = json.loads((ROOT / "benchmarks/results/runs" / grid.run.run_name(spec) / "settings.json").read_text())
+            settings = json.loads((grid.out_folder(spec_grid) / grid.run.run_name(spec) / "settings.json").read_text())
             now = what_ran(grid.run.algorithm_defaults(spec["algo"]), kwargs)
             then = what_ran(recorded_defaults(grid.run, settings), settings["kwargs"])
             differ = {k: (now.get(k), then.get(k)) for k in {*now, *then} if now.get(k) != then.get(k)}
@@ -466,8 +467,8 @@ def test_the_generated_results_files_are_in_sync_with_results_json(page):
 
 
 def test_results_json_holds_every_run_of_the_grid_files(page):
-    """The data file counts exactly the committed runs of the grid files (their final returns, seed by seed): a run
-    added, removed or re-run without re-making the page fails here. The rliable intervals are not recomputed."""
+    """The data file counts exactly the committed runs of the grid files (their final returns and the budgets they
+    asked, seed by seed): a run added, removed or re-run without re-making the page fails here."""
     data = json.loads(page.RESULTS.read_text())
     rows, _ = page.collect(sorted(page.GRIDS.glob("*.yml")))
     recorded = {(row["task"], row["configuration"], row["feedback"], row["ratio"]): row for rows_ in data["tasks"].values()
@@ -475,10 +476,12 @@ def test_results_json_holds_every_run_of_the_grid_files(page):
     assert set(recorded) == set(rows)
     for key, row in rows.items():
         finals = [round(float(run["curve"]["true_return"][-1]), 3) for run in page.runs_of(row)]
-        assert recorded[key]["final_return"]["per_seed"] == finals, key
+        assert (recorded[key]["final_return"] or {"per_seed": []})["per_seed"] == finals, key  # None: not run yet
         # the primary return: the mean of each run's last three evaluations
         primary = [round(float(np.mean(run["curve"]["true_return"][-3:])), 3) for run in page.runs_of(row)]
-        assert recorded[key]["primary_return"]["per_seed"] == primary, key
+        assert (recorded[key]["primary_return"] or {"per_seed": []})["per_seed"] == primary, key
+        asked = [run["result"].get("feedback_asked") for run in page.runs_of(row)]
+        assert recorded[key]["feedback_asked"] == asked, key
         assert recorded[key]["command"] == f"python benchmarks/grid.py {row['grid']}"
 
 
@@ -501,9 +504,9 @@ def test_the_readme_summary_needs_its_markers(page):
     )
 
 
-def write_coded_run(folder: Path, algo: str, seed: int, primary: float, code: str | None) -> None:
-    """A finished walker-walk run at 400 queries (PRIDE at u = 0.5) that ran on the sb3_pride/ tree ``code`` * 40
-    (``"a+dirty"``: tree a…a with changes of its own; ``None``: a run that recorded no commit)."""
+def write_coded_run(folder: Path, algo: str, seed: int, primary: float, code: str | None, asked: int = 400) -> None:
+    """A finished walker-walk run set to 400 queries (PRIDE at u = 0.5) that ran on the sb3_pride/ tree ``code`` * 40
+    (``"a+dirty"``: tree a…a with changes of its own; ``None``: a run that recorded no commit) and asked ``asked``."""
     name = f"{algo}_walker-walk_s{seed}_fb400{'_u0.5' if algo == 'pride' else ''}"
     (folder / name).mkdir(parents=True)
     version = {"commit": None, "dirty": None}
@@ -515,7 +518,7 @@ def write_coded_run(folder: Path, algo: str, seed: int, primary: float, code: st
     (folder / name / "settings.json").write_text(json.dumps(settings))
     evaluations = "".join(f"{step},{primary},\n" for step in (5000, 10000, 15000))
     (folder / name / "curve.csv").write_text("step,true_return,success\n" + evaluations)
-    (folder / name / "result.json").write_text(json.dumps({"final_return": primary}))
+    (folder / name / "result.json").write_text(json.dumps({"final_return": primary, "feedback_asked": asked}))
 
 
 @pytest.mark.parametrize(
@@ -555,3 +558,122 @@ def test_every_run_folder_is_counted_by_a_row_or_archived(page, tmp_path):
     write_coded_run(tmp_path / "runs", "pebble", 0, 300.0, "a")
     write_coded_run(tmp_path / "runs", "pebble", 1, 300.0, "a")  # seed 1: in no block of the grid
     assert [folder.name for folder in page.uncounted_runs([path], tmp_path / "runs")] == ["pebble_walker-walk_s1_fb400"]
+
+
+# --- the statistics of the page: budgets asked, P with 50,000 resamples, the Mann–Whitney p, the best seeds left out --
+
+
+PAIR_GRID = ("comparisons: [[pride, pebble]]\nruns:\n  - {configurations: [pebble, pride], tasks: [walker-walk], "
+             "seeds: 0-4, feedback: [400], ratios: [0.5]}\n")  # fmt: skip
+
+
+def pair_of_rows(page, tmp_path, pebble: list[float], pride: list[float], pride_asked: list[int] | None = None) -> dict:
+    """results.json's data for PEBBLE and PRIDE runs (walker-walk, set to 400 queries) with these primary returns,
+    seed by seed, PRIDE's runs having asked ``pride_asked``."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    path = write_grid(tmp_path, PAIR_GRID)
+    asked = pride_asked or [400] * len(pride)
+    for seed, (a, b, n) in enumerate(zip(pebble, pride, asked, strict=True)):
+        write_coded_run(tmp_path / "runs", "pebble", seed, a, "a")
+        write_coded_run(tmp_path / "runs", "pride", seed, b, "a", asked=n)
+    return page.recount([path], tmp_path / "runs")
+
+
+@pytest.mark.parametrize(
+    "asked, shown",
+    [
+        ([400] * 5, "400"),  # asked all it was set: the number alone
+        ([300] * 5, "300 asked (400 set)"),  # asked fewer (the run ended before its budget was spent)
+        ([300, 400, 350, 400, 400], "300–400 asked (400 set)"),  # the seeds asked different numbers: the range
+    ],
+)
+def test_a_rows_budget_is_what_its_runs_asked(page, tmp_path, asked, shown):
+    """A row states the budget its runs asked (result.json's feedback_asked), not the one they were set: where they
+    asked fewer, the row, its comparisons' labels and the README's summary say so, with the budget set beside it."""
+    data = pair_of_rows(page, tmp_path, [300.0, 310.0, 320.0, 330.0, 340.0], [350.0] * 5, pride_asked=asked)
+    pebble, pride = data["tasks"]["walker-walk"]
+    assert pride["feedback"] == 400 and pride["feedback_asked"] == asked
+    assert page.budget_text(pride) == shown and page.budget_text(pebble) == "400"
+    pride_line = next(line for line in page.render_tables(data).splitlines() if line.startswith("| PRIDE"))
+    assert pride_line.split(" | ")[1] == shown
+    summary_line = next(line for line in page.render_summary({**data, "tasks": {"walker-walk": [
+        {**row, "summary": True} for row in (pebble, pride)]}}).splitlines() if "| PRIDE" in line)  # fmt: skip
+    assert f"| {shown} |" in summary_line
+    if shown != "400":
+        assert pride["against_pebble"]["x"] == f"pride, {shown.replace(' asked', ' queries asked')}, u = 0.5"
+        assert "| 400 |" not in pride_line
+    assert page.budget_text({**pride, "feedback_asked": []}) == "400 set, not run"
+    assert page.budget_text({**pride, "feedback": None}) == "—"  # SAC has no budget
+
+
+def test_p_and_the_mann_whitney_p_agree_in_direction_and_flip_with_the_arms(page, tmp_path):
+    """Where PRIDE clearly ends above PEBBLE, P(PRIDE > PEBBLE) is above 0.5 and the one-sided Mann–Whitney p small;
+    with the arms' returns swapped P reads below 0.5 and p large. Both are in results.json and the tables."""
+    low, high = [300.0, 310.0, 320.0, 330.0, 340.0], [400.0, 410.0, 420.0, 430.0, 440.0]
+    better = pair_of_rows(page, tmp_path / "better", pebble=low, pride=high)["tasks"]["walker-walk"][1]["against_pebble"]
+    worse = pair_of_rows(page, tmp_path / "worse", pebble=high, pride=low)["tasks"]["walker-walk"][1]["against_pebble"]
+    assert better["p"] == 1.0 and better["ci95"] == [1.0, 1.0] and better["mann_whitney_p"] < 0.01
+    assert worse["p"] == 0.0 and worse["mann_whitney_p"] > 0.99
+    # a mixed case: ahead on most seeds, not all; swapped, the same reading mirrored
+    x, y = np.array([350.0, 420.0, 300.0, 390.0, 410.0, 360.0]), np.array([320.0, 340.0, 310.0, 380.0, 305.0, 330.0])
+    ahead, behind = page.improvement(x, y), page.improvement(y, x)
+    assert 0.5 < ahead["p"] < 1.0 and ahead["mann_whitney_p"] < 0.5
+    assert behind["p"] == pytest.approx(1.0 - ahead["p"], abs=1e-4) and behind["p"] < 0.5 < behind["mann_whitney_p"]
+    tables = page.render_tables(pair_of_rows(page, tmp_path / "mixed", pebble=list(y[:5]), pride=list(x[:5])))
+    entry = page.improvement(x[:5], y[:5])
+    assert f"| {page.p_text({**entry, 'code_differs': False})} | {entry['mann_whitney_p']:.3f} |" in tables
+
+
+def test_a_comparison_is_read_again_without_the_better_arms_best_seeds(page):
+    """without_best: P with X's best seed, then its best two, left out, naming them; a lead that rests on one seed
+    reads so (here the best seed carries it: without it, P falls to a half or below)."""
+    x = np.array([300.0, 500.0, 305.0, 310.0])  # seed 11 carries the lead
+    y = np.array([306.0, 309.0, 302.0, 308.0])
+    entry = page.improvement(x, y, seeds_x=[10, 11, 12, 13])
+    assert entry["p"] > 0.5
+    best_one, best_two = entry["without_best"]
+    assert best_one["left_out"] == [11] and best_one["seeds"] == [3, 4] and best_one["p"] < 0.5
+    assert best_two["left_out"] == [11, 13] and best_two["seeds"] == [2, 4]
+    assert best_one["p"] == page.improvement(x[[0, 2, 3]], y)["p"]
+    assert [reduced["left_out"] for reduced in page.improvement(x[:2], y, seeds_x=[10, 11])["without_best"]] == [[11]]
+    text = page.without_best_text({**entry, "code_differs": True})
+    assert text == f"{page.p_text(best_one, mark=False)} / {page.p_text(best_two, mark=False)}" and page.CODE_MARK not in text
+
+
+def test_p_is_drawn_from_50000_resamples_and_the_seed_is_recorded(page):
+    """The evidence protocol's 50,000 resamples, one named constant; results.json records them and the seed."""
+    assert page.RESAMPLES == 50_000
+    data = json.loads(page.RESULTS.read_text())
+    assert data["bootstrap"]["resamples"] == page.RESAMPLES and data["bootstrap"]["seed"] == page.BOOTSTRAP_SEED
+    assert "50,000 resamples" in data["statistics"]
+    assert "50,000 resamples" in page.README.read_text().split(page.START)[1].split(page.END)[0]
+
+
+@pytest.mark.parametrize("sizes", [(5, 5), (4, 7), (3, 2), (1, 3)])
+def test_the_bootstrap_draws_what_rliable_draws(page, sizes):
+    """P and its interval equal rliable's get_interval_estimates with metrics.probability_of_improvement from the same
+    NumPy seed, exactly (ties and unequal seed counts included): the page's vectorised bootstrap is rliable's."""
+    from rliable import library as rly
+    from rliable import metrics
+
+    rng = np.random.default_rng(sum(sizes))
+    x, y = (np.round(rng.normal(300.0, 40.0, size=n), -1) for n in sizes)  # rounded: some ties
+    np.random.seed(7)
+    point, interval = rly.get_interval_estimates({"k": [x[:, None], y[:, None]]}, metrics.probability_of_improvement,
+                                                 reps=400)  # fmt: skip
+    p, bounds = page.bootstrap_improvement(x, y, reps=400, seed=7)
+    assert p == float(point["k"]) and bounds == [float(bound[0]) for bound in interval["k"]]
+
+
+def test_every_committed_p_reads_what_its_rows_seeds_give(page):
+    """Each P, interval and Mann–Whitney p in results.json is recomputed from the two rows' primary returns there, with
+    the recorded resamples and seed: a stale or hand-edited number fails here."""
+    data = json.loads(page.RESULTS.read_text())
+    bootstrap = data["bootstrap"]
+    for task, rows in data["tasks"].items():
+        by_label = {page.label_of(row): row for row in rows}
+        entries = [row["against_pebble"] for row in rows if row["against_pebble"]]
+        for entry in entries + [c for c in data["comparisons"] if c["task"] == task]:
+            x, y = (np.array(by_label[entry[side]]["primary_return"]["per_seed"]) for side in ("x", "y"))
+            again = page.improvement(x, y, reps=bootstrap["resamples"], seed=bootstrap["seed"])
+            assert {k: entry[k] for k in again} == again, (task, entry["x"], entry["y"])
