@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
+from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS
 
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
@@ -280,11 +281,21 @@ def test_the_committed_grid_files_have_all_their_runs_done(grid, capsys):
 GENERATOR_OLD_NAMES = {new: old for old, new in RENAMED_SETTINGS.items()}
 
 
+#: PEBBLE's structured settings' entries and their older flat names: committed runs record these names
+PEBBLE_OLD_NAMES = {place: old for old, place in RENAMED_PEBBLE_SETTINGS.items()}
+
+
 def flat_kwargs(kwargs: dict) -> dict:
-    """Constructor kwargs in one namespace: generator_kwargs spread out under the older flat names."""
+    """
+    Constructor kwargs in one namespace: generator_kwargs, and PEBBLE's reward_kwargs, query_kwargs and
+    pretraining_kwargs, spread out under the older flat names.
+    """
     flat = dict(kwargs)
     for key, value in (flat.pop("generator_kwargs", None) or {}).items():
         flat[GENERATOR_OLD_NAMES.get(key, key)] = value
+    for setting in ("reward_kwargs", "query_kwargs", "pretraining_kwargs"):
+        for key, value in (flat.pop(setting, None) or {}).items():
+            flat[PEBBLE_OLD_NAMES.get((setting, key), key)] = value
     if isinstance(flat.get("policy_kwargs"), dict):  # SB3 adds use_sde=False to what it was given
         flat["policy_kwargs"] = {k: v for k, v in flat["policy_kwargs"].items() if k != "use_sde"}
     return flat
