@@ -43,7 +43,7 @@ def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, as
     )  # fmt: skip
     teacher.model = model
     model.learn(1000)
-    assert len(teacher.steps) == 3 and model.feedback_sessions == 3 and not model.feedback_open
+    assert len(teacher.steps) == 3 and model.feedback_sessions == 3 and model.feedback.pending is None
     if asynchronous:
         # each session's answers took a second: the agent kept stepping meanwhile, on the older reward
         assert all(end > start for start, end in teacher.steps)
@@ -56,7 +56,7 @@ def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, as
         assert model.steps_awaiting_feedback == 0
     # every answer used once: journaled once, in the preferences once, with the label the teacher gave
     entries = PreferenceJournal(journal).read()
-    assert len(entries) == model.feedback_asked == model.journal_entries == 60
+    assert len(entries) == model.feedback_asked == model.feedback.journal.included == 60
     assert len({entry.id for entry in entries}) == 60
     assert len(model.preferences) == model.feedback_labeled == 60
     stored = model.preferences.inputs[: len(model.preferences)]
@@ -71,8 +71,9 @@ def test_a_session_open_when_learn_ends_is_waited_for(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, asynchronous_feedback=True, **tiny_kwargs)
     teacher.model = model
     model.learn(302)  # the first session is published at step 300
-    assert model.feedback_sessions == 1 and model.feedback_asked == 20 and not model.feedback_open
-    assert not model.in_pretraining and model.real_buffer.reward_fn is not None
+    assert model.feedback_sessions == 1 and model.feedback_asked == 20 and model.feedback.pending is None
+    assert not model.in_pretraining and model.real_buffer.reward_source is model.replay_rewards
+    assert model.replay_rewards.learned and not model.replay_rewards.pretraining
 
 
 def test_a_teachers_bad_answer_from_its_thread_is_raised_and_nothing_recorded(tiny_kwargs, tmp_path):
@@ -86,7 +87,7 @@ def test_a_teachers_bad_answer_from_its_thread_is_raised_and_nothing_recorded(ti
     with pytest.raises(ValueError, match="teacher labels"):
         model.learn(400)
     assert len(model.preferences) == 0 and model.feedback_asked == 0 and not journal.exists()
-    assert not model.feedback_open
+    assert model.feedback.pending is None
 
 
 def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwargs, tmp_path):
@@ -94,7 +95,7 @@ def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwa
         saved = False
 
         def _on_step(self) -> bool:
-            if self.model.feedback_open and not self.saved:
+            if self.model.feedback.pending is not None and not self.saved:
                 self.model.save(tmp_path / "open")
                 self.saved = True
             return True
@@ -106,10 +107,10 @@ def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwa
     assert saver.saved
     loaded = PEBBLE.load(tmp_path / "open", env=model.get_env())
     # the open session was not saved: the loaded model asks it again at once (a journal would give its answers back)
-    assert loaded.asynchronous_feedback and not loaded.feedback_open and loaded.feedback_sessions == 0
+    assert loaded.asynchronous_feedback and loaded.feedback.pending is None and loaded.feedback_sessions == 0
     assert loaded.next_feedback_step <= loaded.num_timesteps
     loaded.learn(400, reset_num_timesteps=False)
-    assert loaded.feedback_sessions >= 1 and not loaded.feedback_open
+    assert loaded.feedback_sessions >= 1 and loaded.feedback.pending is None
 
 
 def test_bad_settings_name_the_parameter():
@@ -154,7 +155,7 @@ def test_an_interactive_teachers_log_and_journal_reach_the_model_from_its_thread
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(700, log_interval=1)
     entries = PreferenceJournal(journal).read()
-    assert model.journal_entries == len(entries) == model.feedback_asked == 40
+    assert model.feedback.journal.included == len(entries) == model.feedback_asked == 40
     assert {entry.annotator for entry in entries} == {"ana"}
     assert pd.read_csv(tmp_path / "progress.csv")["annotators/ana/answers"].dropna().tolist()[-1] == 20.0
 
@@ -171,13 +172,13 @@ def test_a_new_model_takes_an_interactive_teachers_journaled_answers_back(tiny_k
     teacher = LoggingTeacher()
     again = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=teacher, **kwargs)
     again.learn(700)
-    assert teacher.asked == [] and again.feedback_asked == 40 and again.journal_entries == 40
+    assert teacher.asked == [] and again.feedback_asked == 40 and again.feedback.journal.included == 40
     assert len(PreferenceJournal(journal).read()) == 40
     again.learn(400, reset_num_timesteps=False)  # the third session is new: asked, journaled after the others
-    assert teacher.asked == [20] and again.journal_entries == len(PreferenceJournal(journal).read()) == 60
+    assert teacher.asked == [20] and again.feedback.journal.included == len(PreferenceJournal(journal).read()) == 60
     # an undo that would take back nothing is refused before the journal is written
     with pytest.raises(ValueError, match="no answer of feedback session 9"):
-        again.retract_answer(9)
+        again.feedback.journal.retract(9)
     with pytest.raises(ValueError, match="to take back"):
-        again.retract_answer(3)  # the third session's answers are taken in already
+        again.feedback.journal.retract(3)  # the third session's answers are taken in already
     assert len(PreferenceJournal(journal).read()) == 60

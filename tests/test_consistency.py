@@ -4,9 +4,16 @@ import torch as th
 
 from sb3_pride import PEBBLE, PRIDE
 from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
+from sb3_pride.common.queries import stored_transitions
 from sb3_pride.common.reward_model import RewardEnsemble
+from sb3_pride.common.utils import merge_kwargs
 
 OBS, ACT = 8, 2
+
+
+def with_consistency(kwargs: dict, settings) -> dict:
+    """``kwargs`` (a test's, with TINY's ``reward_kwargs``) with REED's ``dynamics_consistency`` on."""
+    return merge_kwargs(kwargs, dict(reward_kwargs=dict(dynamics_consistency=settings)))
 
 
 def transitions(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -91,43 +98,50 @@ def test_consistency_trains_the_encoder_never_the_reward_head_and_does_not_colla
 )
 def test_bad_dynamics_consistency_names_the_setting(bad, match):
     with pytest.raises(ValueError, match=match):
-        PEBBLE("MlpPolicy", "Pendulum-v1", dynamics_consistency=bad)
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(dynamics_consistency=bad))
 
 
 def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_path):
     from stable_baselines3.common.logger import configure
 
-    assert PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs).consistency_model is None  # off: PEBBLE as published
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency={"max_transitions": 300}, **tiny_kwargs)
+    off = PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs)
+    assert off.reward_learner.consistency is None  # off: PEBBLE as published
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **with_consistency(tiny_kwargs, {"max_transitions": 300}))
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(400, log_interval=1)
     assert model.feedback_sessions == 1
-    s, a, s_next = model.consistency_transitions()
+    s, a, s_next = stored_transitions(model.real_buffer, np.random.default_rng(0))
     assert s.shape == s_next.shape == (400, 3) and a.shape == (400, 1)
     model.save(tmp_path / "model")
     loaded = PEBBLE.load(tmp_path / "model")
-    assert loaded.consistency_model.members[0] is loaded.reward_model.members  # still one encoder
-    for saved, kept in zip(model.consistency_model.parameters(), loaded.consistency_model.parameters(), strict=True):
+    heads, loaded_heads = model.reward_learner.consistency, loaded.reward_learner.consistency
+    assert loaded_heads.members[0] is loaded.reward_model.members  # still one encoder
+    for saved, kept in zip(heads.parameters(), loaded_heads.parameters(), strict=True):
         assert th.equal(saved, kept)
     # the optimizer's moments came back, and it steps the loaded encoder
-    saved_state, loaded_state = (m.consistency_model.optimizer.state_dict()["state"] for m in (model, loaded))
+    saved_state, loaded_state = (m.optimizer.state_dict()["state"] for m in (heads, loaded_heads))
     assert saved_state.keys() == loaded_state.keys() and len(saved_state) > 0
     for key in saved_state:
         assert th.equal(saved_state[key]["exp_avg"], loaded_state[key]["exp_avg"])
     # its settings may change when loading, but it cannot be turned off (nor on, for a model saved without it), nor
     # change its optimizer
-    assert PEBBLE.load(tmp_path / "model", dynamics_consistency={"epochs": 3}).consistency_model.settings.epochs == 3
-    changed = PEBBLE.load(tmp_path / "model", dynamics_consistency={"learning_rate": 1e-4})  # the saved Adam had 3e-4
-    changed.consistency_model.train_epochs(s[:10], a[:10], s_next[:10], np.random.default_rng(0))
-    assert {group["lr"] for group in changed.consistency_model.optimizer.param_groups} == {1e-4}
-    with pytest.raises(ValueError, match=r"dynamics_consistency: .* saved with it on"):
-        PEBBLE.load(tmp_path / "model", dynamics_consistency=False)
-    with pytest.raises(ValueError, match=r"dynamics_consistency: .* optimizer='adam', .* optimizer='sgd'"):
-        PEBBLE.load(tmp_path / "model", dynamics_consistency={"optimizer": "sgd"})  # Adam's state into SGD
+    saved_kwargs = loaded.reward_kwargs
+
+    def load_with(consistency, path="model"):
+        return PEBBLE.load(tmp_path / path, reward_kwargs=dict(saved_kwargs, dynamics_consistency=consistency))
+
+    assert load_with({"epochs": 3}).reward_learner.consistency.settings.epochs == 3
+    changed = load_with({"learning_rate": 1e-4}).reward_learner.consistency  # the saved Adam had 3e-4
+    changed.train_epochs(s[:10], a[:10], s_next[:10], np.random.default_rng(0))
+    assert {group["lr"] for group in changed.optimizer.param_groups} == {1e-4}
+    with pytest.raises(ValueError, match=r"saved with dynamics_consistency=DynamicsConsistency\(.* on or off .*\(got None\)"):
+        load_with(False)
+    with pytest.raises(ValueError, match=r"optimizer='adam'.* nor change its optimizer \(got .*optimizer='sgd'"):
+        load_with({"optimizer": "sgd"})  # Adam's state into SGD
     PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs).save(tmp_path / "plain")
-    with pytest.raises(ValueError, match=r"dynamics_consistency: .* saved with it off"):
-        PEBBLE.load(tmp_path / "plain", dynamics_consistency=True)
-    stepped = {id(p) for group in loaded.consistency_model.optimizer.param_groups for p in group["params"]}
+    with pytest.raises(ValueError, match=r"saved with dynamics_consistency=None, and loading cannot turn it on or off"):
+        load_with(True, "plain")
+    stepped = {id(p) for group in loaded_heads.optimizer.param_groups for p in group["params"]}
     assert id(loaded.reward_model.members.weights[0]) in stepped
     import pandas as pd
 
@@ -136,13 +150,24 @@ def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_
 
 def test_prides_consistency_pass_takes_the_real_transitions_only(tiny_kwargs):
     model = PRIDE(
-        "MlpPolicy", "Pendulum-v1", seed=0, dynamics_consistency=True,
+        "MlpPolicy", "Pendulum-v1", seed=0,
         synthetic_start=0, synthetic_ramp=0, synthetic_samples=100, diffusion_interval=100,
-        generator_kwargs=dict(width=32, n_blocks=1, train_steps=20, keep_quantile=1.0, fidelity_check=False), **tiny_kwargs,
+        generator_kwargs=dict(width=32, n_blocks=1, train_steps=20, keep_quantile=1.0, fidelity_check=False),
+        **with_consistency(tiny_kwargs, True),
     )  # fmt: skip
     model.learn(400)
     assert model.replay_buffer.synthetic.size() == 100
-    s, _, s_next = model.consistency_transitions()
+    passes = []
+    consistency = model.reward_learner.consistency
+    train_epochs = consistency.train_epochs
+
+    def recording(s, a, s_next, rng):
+        passes.append((s, s_next))
+        return train_epochs(s, a, s_next, rng)
+
+    consistency.train_epochs = recording
+    model.learn_reward()  # a reward update, its consistency pass first
+    [(s, s_next)] = passes
     real = model.real_buffer.size()
     assert len(s) == real  # the generator's samples teach SAC, not r̂'s encoder
     np.testing.assert_array_equal(s_next, model.real_buffer.next_observations[:real, 0])
@@ -151,18 +176,16 @@ def test_prides_consistency_pass_takes_the_real_transitions_only(tiny_kwargs):
 def test_consistency_transitions_keep_each_envs_transitions_together(tiny_kwargs):
     from stable_baselines3.common.env_util import make_vec_env
 
-    model = PEBBLE(
-        "MlpPolicy", make_vec_env("Pendulum-v1", n_envs=2, seed=0), seed=0, dynamics_consistency=True, **tiny_kwargs
-    )
+    model = PEBBLE("MlpPolicy", make_vec_env("Pendulum-v1", n_envs=2, seed=0), seed=0, **with_consistency(tiny_kwargs, True))
     model.learn(200)
-    s, a, s_next = model.consistency_transitions()
+    s, a, s_next = stored_transitions(model.real_buffer, np.random.default_rng(0))
     buffer = model.replay_buffer
     assert len(s) == 2 * buffer.pos
     np.testing.assert_array_equal(s[1], buffer.observations[0, 1])  # row 0 of env 1
     np.testing.assert_array_equal(s_next[1], buffer.next_observations[0, 1])
     np.testing.assert_array_equal(a[1], buffer.actions[0, 1])
     # a limit draws that many (s, a, s') of them, each a stored transition whole
-    s, a, s_next = model.consistency_transitions(limit=50)
+    s, a, s_next = stored_transitions(model.real_buffer, np.random.default_rng(0), limit=50)
     assert s.shape == (50, 3) and len(np.unique(s, axis=0)) == 50
     stored = np.concatenate([buffer.observations[: buffer.pos, e] for e in range(2)])
     stored_next = np.concatenate([buffer.next_observations[: buffer.pos, e] for e in range(2)])

@@ -9,17 +9,16 @@ from test_contract import TINY_DIFFUSION
 from sb3_pride import PEBBLE, PRIDE
 from sb3_pride.common.diffusion import ElucidatedDiffusion
 from sb3_pride.common.fidelity import DynamicsEnsemble
+from sb3_pride.common.utils import merge_kwargs
 
 pytestmark = pytest.mark.skipif(not th.cuda.is_available(), reason="needs a CUDA device")
 
 #: every reward-learning option at once
 OPTIONS = dict(
-    temporal_crop=(6, 10),
-    pseudo_labels=True,
-    robust_labels=True,
-    hybrid_replay=0.5,
-    dynamics_consistency=True,
-    exploration_bonus=True,
+    reward_kwargs=dict(
+        temporal_crop=(6, 10), pseudo_labels=True, robust_labels=True, dynamics_consistency=True, exploration_bonus=True
+    ),
+    query_kwargs=dict(hybrid_replay=0.5),
     query_selection="kcenter_disagreement",
 )
 
@@ -33,7 +32,7 @@ def on(device: str, *modules: th.nn.Module) -> bool:
 @pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
 def test_learns_saves_and_loads_on_cuda(algo, options, tiny_kwargs, tmp_path):
     extra = TINY_DIFFUSION if algo is PRIDE else {}
-    model = algo("MlpPolicy", "Pendulum-v1", seed=0, device="cuda", **tiny_kwargs, **extra, **options)
+    model = algo("MlpPolicy", "Pendulum-v1", seed=0, device="cuda", **merge_kwargs(tiny_kwargs, options), **extra)
     model.learn(700)  # pre-training, two feedback sessions (PRIDE: a generation)
     assert model.feedback_labeled > 0 and on("cuda", model.policy, model.reward_model)
     if algo is PRIDE:

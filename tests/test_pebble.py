@@ -6,6 +6,7 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_pride import PEBBLE, PreferenceReplayBuffer
+from sb3_pride.common.utils import merge_kwargs
 
 
 class NaNReward(gym.Wrapper):
@@ -43,7 +44,7 @@ def test_short_run_on_metaworld_reports_success(tiny_kwargs):
     model.learn(1100)
     assert model.feedback_sessions == 2 and model.feedback_asked == 40
     assert len(model.ep_success_buffer) == 2  # 500-step episodes, is_success read at each end
-    assert np.isfinite(model.reward_correlation())
+    assert np.isfinite(model.reward_learner.correlation(model.real_buffer, np.random.default_rng(0)))
 
 
 @pytest.mark.slow
@@ -61,10 +62,11 @@ def test_learner_never_sees_the_true_reward(tiny_kwargs):
 def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(250)  # inside pre-training (ends at 300)
-    assert model.in_pretraining and model.replay_buffer.intrinsic_reward is model.state_entropy
+    assert model.replay_buffer.reward_source is model.replay_rewards
+    assert model.in_pretraining and model.replay_rewards.pretraining
     assert model.state_entropy.stats.count > 100  # r_int was computed for the SAC minibatches
     model.learn(100, reset_num_timesteps=False)
-    assert not model.in_pretraining and model.replay_buffer.intrinsic_reward is None
+    assert not model.in_pretraining and not model.replay_rewards.pretraining
     samples = model.replay_buffer.sample(32)
     expected = model.reward_model.predict(samples.observations.cpu().numpy(), samples.actions.cpu().numpy())
     np.testing.assert_allclose(samples.rewards.cpu().numpy().ravel(), expected, atol=1e-5)
@@ -76,7 +78,6 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
     """The reset updates after the first session (and every later update) use r̂, never r_int (B-Pref's
     update_after_reset). r_int is made 1000 per step: any of it reaching the reset would show."""
     from sb3_pride import PRIDE
-    from sb3_pride.common.utils import merge_kwargs
     from tests.test_pride import PAPER_MIXING
 
     if algo == "pride":
@@ -85,7 +86,11 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
         model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs, **tiny_kwargs)
     else:
         model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
-    model.state_entropy = lambda obs, all_obs, update_stats=True: th.full((len(obs), 1), 1000.0, device=obs.device)
+
+    def r_int(obs, all_obs, update_stats=True):
+        return th.full((len(obs), 1), 1000.0, device=obs.device)
+
+    model.replay_rewards.state_entropy = r_int  # what the replay buffer's minibatches take while pre-training
     model.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too: count SAC's updates only
     sampled: list[tuple[int, float]] = []
     sample = model.replay_buffer.sample
@@ -101,7 +106,7 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
     after = [reward for sessions, reward in sampled if sessions > 0]
     assert pretraining and min(pretraining) == 1000.0
     # 10 reset updates + the session step's own update + 50 later ones, all on r̂ (tanh-bounded)
-    assert len(after) == tiny_kwargs["critic_reset_updates"] + 51
+    assert len(after) == tiny_kwargs["pretraining_kwargs"]["critic_reset_updates"] + 51
     assert max(after) <= 1.0
     with th.no_grad():
         batch = sample(64)
@@ -138,7 +143,8 @@ def test_save_load_round_trip_and_continue(tiny_kwargs, tmp_path):
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
 
     loaded.load_replay_buffer(tmp_path / "buffer")
-    assert isinstance(loaded.replay_buffer, PreferenceReplayBuffer) and loaded.replay_buffer.reward_fn is not None
+    assert isinstance(loaded.replay_buffer, PreferenceReplayBuffer)
+    assert loaded.replay_buffer.reward_source is loaded.replay_rewards and loaded.replay_rewards.learned
     loaded.learn(300, reset_num_timesteps=False)
     assert loaded.num_timesteps == 1000
     assert loaded.feedback_sessions == 3 and loaded.feedback_asked == 60
@@ -170,17 +176,75 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
     PEBBLE("MlpPolicy", VecNormalize(make_vec_env("Pendulum-v1"), norm_reward=False), **tiny_kwargs)
 
 
-def test_option_reads_each_options_settings(tiny_kwargs):
+def test_the_reward_learner_holds_each_options_settings(tiny_kwargs):
     from sb3_pride.common.consistency import DynamicsConsistency
 
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", dynamics_consistency={"epochs": 3}, **tiny_kwargs)
-    settings = model.option("dynamics_consistency")
-    assert isinstance(settings, DynamicsConsistency) and settings.epochs == 3
-    assert all(model.option(name) is None for name in ("robust_labels", "pseudo_labels", "exploration_bonus"))
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", dynamics_consistency={}, **tiny_kwargs)  # {}: on, at its defaults
-    assert model.option("dynamics_consistency") == DynamicsConsistency()
-    with pytest.raises(ValueError, match=r"name must be one of .*dynamics_consistency.*got 'consistency'"):
-        model.option("consistency")
+    kwargs = merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(dynamics_consistency={"epochs": 3})))
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", **kwargs)
+    learner = model.reward_learner
+    assert isinstance(learner.consistency.settings, DynamicsConsistency) and learner.consistency.settings.epochs == 3
+    assert learner.label_selection is None and learner.pseudo_labels is None and learner.exploration_bonus is None
+    assert learner.ensemble is model.reward_model
+    # {}: on, at its defaults
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", **merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(dynamics_consistency={}))))
+    assert model.reward_learner.consistency.settings == DynamicsConsistency()
+    with pytest.raises(ValueError, match=r"reward_kwargs: unknown settings \['consistency'\].*dynamics_consistency"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", **merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(consistency={}))))
+
+
+def test_a_flat_setting_of_earlier_versions_warns_and_lands_in_its_dict(tiny_kwargs):
+    """The flat names of 0.1.0 and 0.2.0 still construct, with a DeprecationWarning naming the new place; a setting
+    given both ways is refused, and a keyword PEBBLE never had is a TypeError as for any Python function."""
+    with pytest.warns(DeprecationWarning, match="reward_epochs is deprecated: give it as reward_kwargs"):
+        model = PEBBLE("MlpPolicy", "Pendulum-v1", reward_epochs=7, learning_starts=100)
+    assert model.reward_kwargs == {"epochs": 7} and model.reward_learner.epochs == 7
+    with pytest.warns(DeprecationWarning, match="hybrid_replay is deprecated: give it as query_kwargs"):
+        model = PEBBLE("MlpPolicy", "Pendulum-v1", hybrid_replay=0.5, **tiny_kwargs)
+    assert model.query_kwargs == {"hybrid_replay": 0.5} and model.query_sampler.hybrid_replay == 0.5
+    with pytest.raises(ValueError, match=r"reward_epochs is given twice: .* reward_kwargs\['epochs'\]"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_epochs=7, **tiny_kwargs)  # TINY's reward_kwargs hold epochs
+    with pytest.raises(TypeError, match=r"unexpected keyword arguments \['reward_epoch'\]"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_epoch=7)
+
+
+def test_a_model_saved_by_version_0_2_0_loads_with_its_reward_learning_state():
+    """``tests/data/pebble_0.2.0.zip`` was saved by version 0.2.0 (flat reward-learning settings, REED's heads under
+    "consistency_model", RIME's running selection and the scripted teacher as attributes of the model): its settings
+    move into reward_kwargs, query_kwargs and pretraining_kwargs, r̂ predicts as it did, and the teacher, RIME's
+    selection and REED's heads go on where they were."""
+    from pathlib import Path
+
+    from stable_baselines3.common.save_util import load_from_zip_file
+
+    data = Path(__file__).parent / "data"
+    expected = np.load(data / "pebble_0.2.0_expected.npz")
+    model = PEBBLE.load(data / "pebble_0.2.0.zip", env=gym.make("Pendulum-v1"))
+    assert model.reward_kwargs["epochs"] == 20 and model.reward_kwargs["ensemble_size"] == 2
+    assert model.reward_kwargs["early_stop"] is None and tuple(model.reward_kwargs["temporal_crop"]) == (6, 9)
+    assert model.reward_kwargs["robust_labels"] is True and model.reward_kwargs["exploration_bonus"] is True
+    assert model.query_kwargs["hybrid_replay"] == 0.25 and model.query_sampler.hybrid_replay == 0.25
+    assert model.pretraining_kwargs["critic_reset_updates"] == 10
+    assert not hasattr(model, "reward_epochs") and not hasattr(model, "hybrid_replay")
+    np.testing.assert_allclose(model.reward_model.predict(expected["obs"], expected["actions"]), expected["rewards"])
+    teacher = model.feedback.resolve(model.teacher, model.seed)
+    np.testing.assert_array_equal(teacher.rng.random(3), expected["teacher_draws"])
+    assert len(model.preferences) == expected["n_preferences"]
+    selection = model.reward_learner.label_selection
+    assert selection.epochs > 0 and selection.beta == pytest.approx(expected["label_selection_beta"])
+    # REED's heads: the saved weights, on r̂'s encoder
+    consistency = model.reward_learner.consistency
+    assert consistency.settings.max_transitions == 200 and consistency.members[0] is model.reward_model.members
+    _, saved, _ = load_from_zip_file(data / "pebble_0.2.0.zip")
+    heads = consistency.state_dict()
+    assert heads.keys() == saved["consistency_model"].keys()
+    for name, tensor in saved["consistency_model"].items():
+        assert th.equal(heads[name].cpu(), tensor.cpu()), name
+    moments = [state["exp_avg"] for state in consistency.optimizer.state_dict()["state"].values()]
+    saved_moments = [state["exp_avg"] for state in saved["consistency_model.optimizer"]["state"].values()]
+    assert len(moments) == len(saved_moments) > 0
+    assert all(th.equal(a.cpu(), b.cpu()) for a, b in zip(moments, saved_moments, strict=True))
+    model.learn(100, reset_num_timesteps=False)
+    assert model.num_timesteps == 800
 
 
 def test_a_custom_teacher_is_checked(tiny_kwargs):
@@ -251,7 +315,8 @@ def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo)
     assert all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
     model.train(gradient_steps=5, batch_size=32)
     assert model._n_updates == 5 and not all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
-    model.feedback_session()  # a session called from the user's loop
+    assert model.publish_queries(asynchronous=False)  # a session called from the user's loop
+    model.take_answers()
     assert model.feedback_sessions == 2
     if algo == "pride":
         retrains = model.diffusion_retrains

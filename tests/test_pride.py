@@ -176,7 +176,8 @@ TINY_DYNAMICS = dict(width=64, train_steps=200)
 
 
 def record_draws(buffer: DualReplayBuffer) -> list[tuple[str, int]]:
-    """Record (part, rows) of every draw from the buffer's real and synthetic parts from now on."""
+    """Record (part, rows) of every draw from the buffer's real and synthetic parts from now on (the real part's
+    transitions as stored: the minibatch's rewards are rewritten once, whole)."""
     drawn: list[tuple[str, int]] = []
 
     def recording(part, sample):
@@ -186,7 +187,7 @@ def record_draws(buffer: DualReplayBuffer) -> list[tuple[str, int]]:
 
         return sample_and_record
 
-    buffer.real.sample = recording("real", buffer.real.sample)
+    buffer.real.sample_transitions = recording("real", buffer.real.sample_transitions)
     buffer.synthetic.sample = recording("synthetic", buffer.synthetic.sample)
     return drawn
 
@@ -383,7 +384,8 @@ def test_a_model_saved_by_version_0_1_0_loads_with_its_generator_and_teacher():
     assert model.generator_kwargs["width"] == 16 and model.generator_kwargs["window"] is None
     assert model.generator.diffusion_options["n_blocks"] == 1 and not hasattr(model, "diffusion_width")
     assert model.generator.diffusion is not None and model.model_terminals is False
-    np.testing.assert_array_equal(model.resolve_teacher().rng.random(3), np.load(data / "pride_0.1.0_next_draws.npy"))
+    teacher = model.feedback.resolve(model.teacher, model.seed)
+    np.testing.assert_array_equal(teacher.rng.random(3), np.load(data / "pride_0.1.0_next_draws.npy"))
     model.learn(100, reset_num_timesteps=False)
 
 

@@ -1,21 +1,25 @@
 """
 Bad input, systematically: property-based tests with Hypothesis.
 
-1. Constructors. Every validated parameter of PEBBLE and PRIDE (PEBBLE's also through PRIDE, the generator's through
-   ``generator_kwargs``) refuses values drawn
+1. Constructors. Every validated parameter of PEBBLE and PRIDE (PEBBLE's also through PRIDE; the reward learner's,
+   the query sampler's and pre-training's through ``reward_kwargs``, ``query_kwargs`` and ``pretraining_kwargs``, the
+   generator's through ``generator_kwargs``) refuses values drawn
    from outside what it accepts (out-of-range integers, non-integers where an integer is required, NaN and ±inf,
    bools, strings, None, unknown choices) with a ``ValueError`` that names the parameter and the accepted range.
-   Values drawn from inside the range construct, and the model keeps them.
-2. The teacher boundary. ``PEBBLE.ask_teacher`` and the feedback session inside ``learn()`` refuse a teacher's
+   Values drawn from inside the range construct, and the model keeps them. A structured setting refuses names it does
+   not know, naming the setting.
+2. The teacher boundary. The model's ``feedback.ask`` and the feedback session inside ``learn()`` refuse a teacher's
    answer of the wrong length, or with a label outside [0, 1] (±inf included), with a ``ValueError``; then nothing
-   is recorded: ``preferences``, ``feedback_asked`` / ``feedback_labeled`` / ``feedback_sessions``,
-   ``journal_entries`` and the preference journal are as before. Labels drawn from {0, 0.5, 1, NaN} and [0, 1]
-   are accepted and counted: every query as asked, the non-NaN ones as labeled and added to the preferences.
+   is recorded: ``preferences``, ``feedback_asked`` / ``feedback_labeled`` / ``feedback_sessions``, the journal
+   entries the run includes (``feedback.journal.included``) and the preference journal are as before. Labels drawn
+   from {0, 0.5, 1, NaN} and [0, 1] are accepted and counted: every query as asked, the non-NaN ones as labeled and
+   added to the preferences.
 
 The holes they found (each failed before its fix) have their own tests at the end.
 """
 
 import math
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,9 +34,11 @@ from sb3_pride.common.diffusion import NORMALIZATIONS
 from sb3_pride.common.generator import FILTERS, GENERATIONS
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs
+from sb3_pride.common.reward_learner import RewardLearner
+from sb3_pride.common.utils import merge_kwargs
 
 #: cheap models: Pendulum (200-step episodes), tiny networks, small buffers
-CHEAP = dict(buffer_size=1000, policy_kwargs=dict(net_arch=[16]), reward_net_arch=(16,))
+CHEAP = dict(buffer_size=1000, policy_kwargs=dict(net_arch=[16]), reward_kwargs=dict(net_arch=(16,)))
 CHEAP_PRIDE = dict(CHEAP, synthetic_samples=64)
 #: invalid values raise before anything is built; valid ones build a model (a few ms each)
 FAST = settings(max_examples=25, deadline=None, database=None)
@@ -47,15 +53,29 @@ GENERATOR_PARAMS = {"width", "n_blocks", "train_steps", "sample_steps", "window"
                     "anchor_noise", "keep_quantile", "filter", "diffusion_kwargs", "dynamics_kwargs"}  # fmt: skip
 
 
+#: PEBBLE's structured settings, whose entries are named "setting.key" here (e.g. "reward_kwargs.epochs")
+STRUCTURED = ("reward_kwargs", "query_kwargs", "pretraining_kwargs")
+
+
 def build(algo, **kwargs):
-    generator = {name: kwargs.pop(name) for name in list(kwargs) if name in GENERATOR_PARAMS}
-    if generator:
-        kwargs["generator_kwargs"] = generator
-    return algo("MlpPolicy", "Pendulum-v1", **{**(CHEAP_PRIDE if algo is PRIDE else CHEAP), **kwargs})
+    """``algo`` on Pendulum, cheap, with ``kwargs``: "setting.key" into its structured setting, the generator's into
+    ``generator_kwargs``."""
+    nested: dict = {}
+    for name in list(kwargs):
+        if "." in name:
+            setting, key = name.split(".")
+            nested.setdefault(setting, {})[key] = kwargs.pop(name)
+        elif name in GENERATOR_PARAMS:
+            nested.setdefault("generator_kwargs", {})[name] = kwargs.pop(name)
+    return algo("MlpPolicy", "Pendulum-v1", **merge_kwargs(CHEAP_PRIDE if algo is PRIDE else CHEAP, {**kwargs, **nested}))
 
 
 def setting(model, param):
-    """A constructor setting as the model keeps it (the generator's on its generator)."""
+    """A constructor setting as the model keeps it (a structured setting's entry in it, the generator's on its
+    generator)."""
+    if "." in param:
+        name, key = param.split(".")
+        return getattr(model, name)[key]
     if param in GENERATOR_PARAMS:
         return model.generator.diffusion_options.get(param, getattr(model.generator, param, None))
     return getattr(model, param)
@@ -108,30 +128,66 @@ class Invalid:
     def id(self) -> str:
         return self.param + (f"-{self.label}" if self.label else "")
 
+    @property
+    def name(self) -> str:
+        return named(self.param)
 
-PEBBLE_POSITIVE = (
-    "max_feedback",
-    "feedback_interval",
-    "queries_per_session",
-    "segment_length",
-    "candidates_multiplier",
-    "max_query_episodes",
-    "entropy_k",
-    "ensemble_size",
-    "reward_batch_size",
-    "reward_epochs",
-)
-PEBBLE_NON_NEGATIVE = ("unsupervised_steps", "critic_reset_updates")
+
+def named(param: str) -> str:
+    """What an error names: an entry of reward_kwargs as "reward_kwargs: epochs", of the others by its key alone."""
+    setting, _, key = param.rpartition(".")
+    return f"{setting}: {key}" if setting == "reward_kwargs" else key
+
+
+PEBBLE_POSITIVE = ("max_feedback", "feedback_interval", "queries_per_session", "segment_length")
+#: in reward_kwargs, errors read "reward_kwargs: epochs must be ..."
+REWARD_POSITIVE = ("reward_kwargs.ensemble_size", "reward_kwargs.batch_size", "reward_kwargs.epochs")
+#: in query_kwargs and pretraining_kwargs, errors name the key alone
+QUERY_POSITIVE = ("query_kwargs.candidates_multiplier", "query_kwargs.max_query_episodes", "pretraining_kwargs.entropy_k")
+PEBBLE_NON_NEGATIVE = ("unsupervised_steps", "pretraining_kwargs.critic_reset_updates")
 PRIDE_POSITIVE = ("diffusion_interval", "synthetic_samples", "width", "n_blocks", "train_steps", "sample_steps")
 PRIDE_OPTIONAL_POSITIVE = ("synthetic_buffer_size", "window")  # None: the default
 PRIDE_NON_NEGATIVE = ("synthetic_start", "synthetic_ramp")
 
+
+def unknown_names(known) -> st.SearchStrategy:
+    """A dict with at least one name that is not in ``known``."""
+    names = st.text(min_size=1, max_size=12).filter(lambda name: name not in known)
+    return st.dictionaries(names, st.integers(1, 5), min_size=1, max_size=3)
+
+
 PEBBLE_INVALID = [
-    *(Invalid(p, not_positive_int(), f"{p} must be a positive integer") for p in PEBBLE_POSITIVE),
-    *(Invalid(p, not_non_negative_int(), f"{p} must be a non-negative integer") for p in PEBBLE_NON_NEGATIVE),
+    *(
+        Invalid(p, not_positive_int(), f"{named(p)} must be a positive integer")
+        for p in (*PEBBLE_POSITIVE, *REWARD_POSITIVE, *QUERY_POSITIVE)
+    ),
+    *(Invalid(p, not_non_negative_int(), f"{named(p)} must be a non-negative integer") for p in PEBBLE_NON_NEGATIVE),
     Invalid("segment_length", st.integers(201, 10**9), "is longer than an episode of this env (200 steps)", "over-episode"),
     Invalid("query_selection", not_one_of(QUERY_SELECTIONS), f"query_selection must be one of {QUERY_SELECTIONS}"),
-    Invalid("reward_learning_rate", st.floats(max_value=0.0), "reward_learning_rate must be > 0"),
+    Invalid("reward_kwargs.learning_rate", st.floats(max_value=0.0), "reward_kwargs: learning_rate must be > 0"),
+    Invalid(
+        "reward_kwargs.early_stop",
+        st.one_of(st.floats(max_value=0.0), st.floats(min_value=1.0), st.booleans(), st.text(max_size=4)),
+        "reward_kwargs: early_stop must be None (no early stop) or in (0, 1)",
+    ),
+    Invalid(
+        "query_kwargs.hybrid_replay",
+        st.one_of(negative_floats(), floats_above(1.0), st.just(math.nan), st.booleans(), st.none()),
+        "hybrid_replay must be in [0, 1]",
+    ),
+    Invalid("reward_kwargs", unknown_names(RewardLearner.settings()), "reward_kwargs: unknown settings", "unknown"),
+    Invalid(
+        "query_kwargs",
+        unknown_names({"candidates_multiplier", "max_query_episodes", "hybrid_replay"}),
+        "query_kwargs must be a dict of QuerySampler's settings",
+        "unknown",
+    ),
+    Invalid(
+        "pretraining_kwargs",
+        unknown_names({"entropy_k", "critic_reset_updates"}),
+        "pretraining_kwargs: unknown settings",
+        "unknown",
+    ),
     Invalid("n_steps", st.integers().filter(lambda n: n != 1), "n_steps must be 1"),
     Invalid(
         "teacher",
@@ -177,11 +233,16 @@ VALID = [
     (PEBBLE, "segment_length", st.one_of(st.integers(1, 200), numpy_ints(1, 200))),
     (PEBBLE, "queries_per_session", st.one_of(st.integers(1, 10**9), numpy_ints(1, 10**9))),
     (PEBBLE, "max_feedback", st.integers(1, 10**12)),
-    (PEBBLE, "candidates_multiplier", st.integers(1, 10**6)),
+    (PEBBLE, "query_kwargs.candidates_multiplier", st.integers(1, 10**6)),
+    (PEBBLE, "query_kwargs.max_query_episodes", st.one_of(st.integers(1, 10**6), numpy_ints(1, 10**6))),
+    (PEBBLE, "query_kwargs.hybrid_replay", st.floats(0.0, 1.0)),
     (PEBBLE, "unsupervised_steps", st.integers(0, 10**12)),
-    (PEBBLE, "critic_reset_updates", st.one_of(st.integers(0, 10**6), numpy_ints(0, 10**6))),
+    (PEBBLE, "pretraining_kwargs.critic_reset_updates", st.one_of(st.integers(0, 10**6), numpy_ints(0, 10**6))),
+    (PEBBLE, "pretraining_kwargs.entropy_k", st.integers(1, 10**6)),
     (PEBBLE, "query_selection", st.sampled_from(QUERY_SELECTIONS)),
-    (PEBBLE, "reward_learning_rate", st.floats(min_value=0.0, max_value=1e3, exclude_min=True)),
+    (PEBBLE, "reward_kwargs.learning_rate", st.floats(min_value=0.0, max_value=1e3, exclude_min=True)),
+    (PEBBLE, "reward_kwargs.epochs", st.one_of(st.integers(1, 10**6), numpy_ints(1, 10**6))),
+    (PEBBLE, "reward_kwargs.early_stop", st.one_of(st.none(), st.floats(0.0, 1.0, exclude_min=True, exclude_max=True))),
     (PRIDE, "synthetic_ratio", st.floats(0.0, 1.0, exclude_max=True)),
     (PRIDE, "diffusion_interval", st.integers(1, 10**12)),
     (PRIDE, "synthetic_buffer_size", st.one_of(st.none(), st.integers(1, 1000))),
@@ -201,7 +262,7 @@ VALID = [
 @given(data=st.data())
 def test_invalid_values_are_refused_naming_the_parameter(algo, case, data):
     value = data.draw(case.values, label=case.param)
-    with pytest.raises(ValueError, match=case.param) as error:
+    with pytest.raises(ValueError, match=re.escape(case.name)) as error:
         build(algo, **{case.param: value})
     assert case.expected in str(error.value)
 
@@ -217,18 +278,19 @@ def test_valid_values_construct(algo, param, values, data):
 
 # -- the teacher boundary ------------------------------------------------------------------------------------------
 #: pre-training ends at step 40, and a session asks N_PAIRS queries of 5-step segments
-SESSION = dict(
-    TINY,
-    **CHEAP,
-    learning_starts=20,
-    unsupervised_steps=20,
-    segment_length=5,
-    queries_per_session=8,
-    max_feedback=10**6,
-    feedback_interval=10**6,
-    batch_size=16,
-    reward_epochs=2,
-    critic_reset_updates=2,
+SESSION = merge_kwargs(
+    merge_kwargs(TINY, CHEAP),
+    dict(
+        learning_starts=20,
+        unsupervised_steps=20,
+        segment_length=5,
+        queries_per_session=8,
+        max_feedback=10**6,
+        feedback_interval=10**6,
+        batch_size=16,
+        reward_kwargs=dict(epochs=2),
+        pretraining_kwargs=dict(critic_reset_updates=2),
+    ),
 )
 N_PAIRS = SESSION["queries_per_session"]
 
@@ -297,7 +359,7 @@ def feedback_record(model: PEBBLE) -> dict:
         asked=model.feedback_asked,
         labeled=model.feedback_labeled,
         sessions=model.feedback_sessions,
-        journal_entries=model.journal_entries,
+        journal_entries=model.feedback.journal.included,
         journal=len(PreferenceJournal(model.preference_journal).read()),
         inputs=model.preferences.inputs.copy(),
         labels=model.preferences.labels.copy(),
@@ -321,8 +383,14 @@ def accepting_model(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def bare_model():
-    """For ``ask_teacher`` alone: no env step needed."""
+    """For asking its teacher alone: no env step needed."""
     return build(PEBBLE, teacher=EchoTeacher())
+
+
+def ask_teacher(model: PEBBLE, pairs: SegmentPairs) -> np.ndarray:
+    """The model's teacher asked about ``pairs`` as in its next feedback session, the answer checked."""
+    context = model.feedback.context(model.feedback_sessions + 1, model.feedback_asked, model.max_feedback)
+    return model.feedback.ask(pairs, context)
 
 
 def segment_pairs(n: int) -> SegmentPairs:
@@ -340,7 +408,7 @@ def test_ask_teacher_refuses_bad_labels(bare_model, n_pairs, data):
     )
     bare_model.teacher.labels = labels
     with pytest.raises(ValueError, match="teacher"):
-        bare_model.ask_teacher(segment_pairs(n_pairs))
+        ask_teacher(bare_model, segment_pairs(n_pairs))
 
 
 @SESSIONS
@@ -348,7 +416,7 @@ def test_ask_teacher_refuses_bad_labels(bare_model, n_pairs, data):
 def test_ask_teacher_accepts_valid_labels(bare_model, n_pairs, data):
     labels = data.draw(CONTAINERS)(data.draw(st.lists(VALID_LABELS, min_size=n_pairs, max_size=n_pairs), label="labels"))
     bare_model.teacher.labels = labels
-    answer = bare_model.ask_teacher(segment_pairs(n_pairs))
+    answer = ask_teacher(bare_model, segment_pairs(n_pairs))
     assert answer.shape == (n_pairs,) and answer.dtype == np.float64
     np.testing.assert_array_equal(answer, np.asarray(labels, dtype=np.float64))
 
@@ -397,14 +465,15 @@ def test_a_session_accepts_and_counts_valid_labels(accepting_model, labels, cont
 # -- holes these tests found, fixed -------------------------------------------------------------------------------
 @pytest.mark.parametrize("value", [math.nan, math.inf])
 def test_reward_learning_rate_refuses_nan_and_inf(value):
-    with pytest.raises(ValueError, match="reward_learning_rate must be > 0"):
-        build(PEBBLE, reward_learning_rate=value)
+    with pytest.raises(ValueError, match="reward_kwargs: learning_rate must be > 0"):
+        build(PEBBLE, **{"reward_kwargs.learning_rate": value})
 
 
 @pytest.mark.parametrize(
     ("algo", "param"),
     [
-        (PEBBLE, "reward_learning_rate"),
+        (PEBBLE, "reward_kwargs.learning_rate"),
+        (PEBBLE, "query_kwargs.hybrid_replay"),
         (PRIDE, "synthetic_ratio"),
         (PRIDE, "anchor_noise"),
         (PRIDE, "keep_quantile"),
@@ -412,8 +481,27 @@ def test_reward_learning_rate_refuses_nan_and_inf(value):
 )
 @pytest.mark.parametrize("value", ["0.5", None])
 def test_non_numbers_for_float_parameters_are_refused_naming_them(algo, param, value):
-    with pytest.raises(ValueError, match=param):
+    with pytest.raises(ValueError, match=re.escape(named(param))):
         build(algo, **{param: value})
+
+
+@pytest.mark.xfail(
+    strict=True,
+    reason="the package turns each structured setting into dict(value) before checking it "
+    "(migration.move_renamed_settings): a value that is not a dict fails with dict()'s own error, or is taken (a list "
+    "of pairs), without naming the setting",
+)
+@pytest.mark.parametrize(
+    ("param", "value"),
+    [
+        *((name, bad) for name in STRUCTURED for bad in ("paper", 3)),
+        # a list of (name, value) pairs of a setting it knows
+        *zip(STRUCTURED, ([("epochs", 5)], [("hybrid_replay", 0.5)], [("entropy_k", 5)]), strict=True),
+    ],
+)
+def test_a_structured_setting_that_is_not_a_dict_is_refused_naming_it(param, value):
+    with pytest.raises(ValueError, match=param):
+        build(PEBBLE, **{param: value})
 
 
 @pytest.mark.parametrize(
@@ -434,11 +522,11 @@ def test_bad_component_kwargs_are_refused_at_construction(param, kwargs):
 def test_ask_teacher_refuses_none_labels(bare_model, n_pairs, labels):
     bare_model.teacher.labels = labels
     with pytest.raises(ValueError, match="teacher"):
-        bare_model.ask_teacher(segment_pairs(n_pairs))
+        ask_teacher(bare_model, segment_pairs(n_pairs))
 
 
 @pytest.mark.parametrize("labels", [["left", "right"], [{}, {}]], ids=["strings", "objects"])
 def test_ask_teacher_refuses_non_numbers_naming_the_teacher(bare_model, labels):
     bare_model.teacher.labels = labels
     with pytest.raises(ValueError, match="teacher"):
-        bare_model.ask_teacher(segment_pairs(2))
+        ask_teacher(bare_model, segment_pairs(2))

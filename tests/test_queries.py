@@ -117,6 +117,19 @@ def test_pebble_runs_with_kcenter_query_selection(tiny_kwargs):
     assert model.feedback_sessions == 2 and model.feedback_asked == 40
 
 
+class RecentRows:
+    """A reward source that keeps the stored rewards and draws ``recent_share`` of each minibatch from ``recent_rows``."""
+
+    def __init__(self, recent_rows, recent_share):
+        self.recent_rows, self.recent_share = recent_rows, recent_share
+
+    def new_rewards(self, observations, actions):
+        return np.zeros(len(observations), dtype=np.float32)
+
+    def rewrite(self, samples, buffer, env):
+        return samples
+
+
 def test_hybrid_replay_draws_its_share_from_the_most_recent_episodes():
     """QPA's hybrid replay: recent_rows are the rows of the last episodes (across the ring buffer's wrap), and a
     minibatch with recent_share 0.5 holds that share from them on top of what uniform sampling gives them."""
@@ -128,11 +141,11 @@ def test_hybrid_replay_draws_its_share_from_the_most_recent_episodes():
     recent = [last - 2, last - 1, last]
     assert set(buffer.observations[rows, 0, 0]) == set(recent) and rows[-1] == (buffer.pos - 1) % 500
     assert np.isin(buffer.observations[:, 0, 0], recent).sum() == len(rows)  # all of their rows
-    buffer.recent_share, buffer.recent_rows = 0.5, rows
+    buffer.reward_source = RecentRows(rows, 0.5)
     np.random.seed(0)
     share = np.isin(buffer.sample(2000).observations[:, 0].cpu().numpy(), recent).mean()
     assert abs(share - (0.5 + 0.5 * len(rows) / 500)) < 0.05
-    buffer.recent_share = 0.0  # off: SB3's uniform sampling
+    buffer.reward_source.recent_share = 0.0  # off: SB3's uniform sampling
     share = np.isin(buffer.sample(2000).observations[:, 0].cpu().numpy(), recent).mean()
     assert abs(share - len(rows) / 500) < 0.05
 
@@ -142,12 +155,15 @@ def test_pebble_hybrid_replay_is_on_while_queries_remain(tiny_kwargs):
 
     for bad in (-0.1, 1.5, "half"):
         with pytest.raises(ValueError, match="hybrid_replay"):
-            PEBBLE("MlpPolicy", "Pendulum-v1", hybrid_replay=bad)
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, hybrid_replay=0.5, max_query_episodes=2, **tiny_kwargs)
+            PEBBLE("MlpPolicy", "Pendulum-v1", query_kwargs=dict(hybrid_replay=bad))
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, query_kwargs=dict(hybrid_replay=0.5, max_query_episodes=2),
+                   **tiny_kwargs)  # fmt: skip
+    source = model.replay_rewards  # what the replay buffer asks
+    assert model.real_buffer.reward_source is source
     model.learn(250)  # pre-training: uniform
-    assert model.real_buffer.recent_share == 0.0 and model.real_buffer.recent_rows is None
+    assert source.recent_share == 0.0 and source.recent_rows is None
     model.learn(450, reset_num_timesteps=False)  # after the first session, queries remain
-    assert model.real_buffer.recent_share == 0.5 and 0 < len(model.real_buffer.recent_rows) <= 400
+    assert source.recent_share == 0.5 and 0 < len(source.recent_rows) <= 400
     model.max_feedback = model.feedback_asked  # every query asked: uniform again
     model.learn(10, reset_num_timesteps=False)
-    assert model.real_buffer.recent_share == 0.0
+    assert source.recent_share == 0.0

@@ -16,6 +16,12 @@ from sb3_pride.common.reward_model import (
     crop_pairs,
     preference_loss,
 )
+from sb3_pride.common.utils import merge_kwargs
+
+
+def with_rewards(kwargs: dict, **settings) -> dict:
+    """``kwargs`` (a test's, with TINY's ``reward_kwargs``) with these ``reward_kwargs`` settings too."""
+    return merge_kwargs(kwargs, dict(reward_kwargs=settings))
 
 
 def test_bradley_terry_loss_by_hand():
@@ -120,7 +126,7 @@ def test_bad_temporal_crop_names_the_parameter(bad):
     with pytest.raises(ValueError, match="temporal_crop"):
         RewardEnsemble(2, 1, net_arch=(8,), device="cpu").train_epochs(dataset, 1, temporal_crop=bad)
     with pytest.raises(ValueError, match="temporal_crop"):
-        PEBBLE("MlpPolicy", "Pendulum-v1", segment_length=10, temporal_crop=bad)
+        PEBBLE("MlpPolicy", "Pendulum-v1", segment_length=10, reward_kwargs=dict(temporal_crop=bad))
 
 
 def test_check_temporal_crop_accepts_none_and_pairs():
@@ -131,8 +137,9 @@ def test_check_temporal_crop_accepts_none_and_pairs():
 
 
 def test_pebble_with_temporal_crop_trains_in_a_short_run(tiny_kwargs):
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, temporal_crop=(6, 8), reward_early_stop=None, **tiny_kwargs)
-    assert model.temporal_crop == (6, 8) and PEBBLE("MlpPolicy", "Pendulum-v1").temporal_crop is None
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **with_rewards(tiny_kwargs, temporal_crop=(6, 8), early_stop=None))
+    assert model.reward_learner.temporal_crop == (6, 8)
+    assert PEBBLE("MlpPolicy", "Pendulum-v1").reward_learner.temporal_crop is None
     calls, epochs_run = [], []
     train_epochs = model.reward_model.train_epochs
 
@@ -146,22 +153,22 @@ def test_pebble_with_temporal_crop_trains_in_a_short_run(tiny_kwargs):
     model.learn(700)
     # sessions at 300 (end of pre-training) and 600, each training r̂ on the cropped pairs, every epoch
     assert model.feedback_sessions == 2 and calls == [((6, 8), 1.0), ((6, 8), 1.0)]
-    assert epochs_run == [tiny_kwargs["reward_epochs"]] * 2
+    assert epochs_run == [tiny_kwargs["reward_kwargs"]["epochs"]] * 2
     assert len(model.preferences) == 40 and model.preferences.inputs.shape[2] == 10  # D keeps whole segments
     buffer = model.replay_buffer
     n = buffer.pos
     np.testing.assert_allclose(
         buffer.rewards[:n, 0], model.reward_model.predict(buffer.observations[:n, 0], buffer.actions[:n, 0]), atol=1e-5
     )
-    assert np.isfinite(model.reward_correlation())
+    assert np.isfinite(model.reward_learner.correlation(model.real_buffer, np.random.default_rng(0)))
 
 
 def test_reward_early_stop_is_pebbles_97_percent_unless_told():
-    assert PEBBLE("MlpPolicy", "Pendulum-v1").reward_early_stop == 0.97
-    assert PEBBLE("MlpPolicy", "Pendulum-v1", reward_early_stop=None).reward_early_stop is None
+    assert PEBBLE("MlpPolicy", "Pendulum-v1").reward_learner.early_stop == 0.97
+    assert PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(early_stop=None)).reward_learner.early_stop is None
     for bad in (0, 1, 1.5, -0.1, float("nan"), "0.9", True):
-        with pytest.raises(ValueError, match="reward_early_stop"):
-            PEBBLE("MlpPolicy", "Pendulum-v1", reward_early_stop=bad)
+        with pytest.raises(ValueError, match="reward_kwargs: early_stop"):
+            PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(early_stop=bad))
 
 
 def noisy_preferences(n: int, eps_mistake: float, seed: int):
@@ -226,22 +233,24 @@ def test_bad_robust_labels_name_the_setting(bad, match):
     with pytest.raises(ValueError, match=match):
         RobustLabels(**bad)
     with pytest.raises(ValueError, match=match):
-        PEBBLE("MlpPolicy", "Pendulum-v1", robust_labels=bad)
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(robust_labels=bad))
 
 
 def test_pebble_with_robust_labels_logs_its_selection_and_saves_it(tiny_kwargs, tmp_path):
     from stable_baselines3.common.logger import configure
 
     with pytest.raises(ValueError, match="robust_labels"):
-        PEBBLE("MlpPolicy", "Pendulum-v1", robust_labels="rime")
-    assert PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs).label_selection is None  # off: PEBBLE as published
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher="mistake", robust_labels=True, **tiny_kwargs)
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(robust_labels="rime"))
+    off = PEBBLE("MlpPolicy", "Pendulum-v1", **tiny_kwargs)
+    assert off.reward_learner.label_selection is None  # off: PEBBLE as published
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher="mistake", **with_rewards(tiny_kwargs, robust_labels=True))
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(700, log_interval=1)
-    assert model.label_selection.epochs > 0 and model.label_selection.max_divergence is not None
+    selection = model.reward_learner.label_selection
+    assert selection.epochs > 0 and selection.max_divergence is not None
     model.save(tmp_path / "model")
     loaded = PEBBLE.load(tmp_path / "model")
-    assert loaded.label_selection == model.label_selection
+    assert loaded.reward_learner.label_selection == selection
     import pandas as pd
 
     progress = pd.read_csv(tmp_path / "progress.csv")
@@ -283,11 +292,21 @@ def test_pseudo_labels_teach_each_member_its_own_confident_answers_and_nothing_e
 def test_pebble_with_pseudo_labels_trains_and_bad_settings_are_named(tiny_kwargs):
     for bad, match in (({"threshold": 1.0}, "threshold"), ({"ratio": 0}, "ratio"), ({"tau": 0.9}, "unknown settings")):
         with pytest.raises(ValueError, match=match):
-            PEBBLE("MlpPolicy", "Pendulum-v1", pseudo_labels=bad)
+            PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(pseudo_labels=bad))
     with pytest.raises(ValueError, match="pseudo_labels"):
-        PEBBLE("MlpPolicy", "Pendulum-v1", pseudo_labels="surf")
-    model = PEBBLE(
-        "MlpPolicy", "Pendulum-v1", seed=0, pseudo_labels={"unlabeled_per_label": 5}, temporal_crop=(6, 9), **tiny_kwargs
-    )
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(pseudo_labels="surf"))
+    kwargs = with_rewards(tiny_kwargs, pseudo_labels={"unlabeled_per_label": 5}, temporal_crop=(6, 9))
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs)
+    assert model.reward_learner.pseudo_labels == PseudoLabels(unlabeled_per_label=5)
+    drawn = []
+    unlabeled_pairs = model.query_sampler.unlabeled_pairs
+
+    def recording(buffer, n_pairs, rng):
+        pairs = unlabeled_pairs(buffer, n_pairs, rng)
+        drawn.append(len(pairs))
+        return pairs
+
+    model.query_sampler.unlabeled_pairs = recording
     model.learn(400)
-    assert model.feedback_sessions == 1 and len(model.unlabeled_pairs(PseudoLabels(unlabeled_per_label=5))) == 100
+    # the session's 20 labels, 5 unlabelled pairs each
+    assert model.feedback_sessions == 1 and drawn == [100]

@@ -103,10 +103,10 @@ def test_a_registered_teacher_is_made_from_its_name_and_saved_as_a_name(tiny_kwa
     register_teacher("judge", Judge)
     try:
         model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, teacher="judge", **tiny_kwargs).learn(400)
-        assert model.feedback_labeled > 0 and model.resolve_teacher().seed == 4
+        assert model.feedback_labeled > 0 and model.feedback.resolve(model.teacher, model.seed).seed == 4
         model.save(tmp_path / "model")
         loaded = PEBBLE.load(tmp_path / "model")
-        assert loaded.teacher == "judge" and isinstance(loaded.resolve_teacher(), Judge)
+        assert loaded.teacher == "judge" and isinstance(loaded.feedback.resolve(loaded.teacher, loaded.seed), Judge)
     finally:
         TEACHERS.pop("judge")
     with pytest.raises(ValueError, match="factory must be callable"):

@@ -19,7 +19,7 @@ from sb3_pride.zoo import hyperparams_dir, register
 HYPERPARAMS = hyperparams_dir()
 FILES = ["sac.yml", "pebble.yml", "pride.yml", "cpu/sac.yml", "cpu/pebble.yml", "cpu/pride.yml"]
 PEBBLE_KEYS = {"teacher", "max_feedback", "feedback_interval", "queries_per_session", "segment_length",
-               "query_selection", "unsupervised_steps", "reward_epochs"}  # fmt: skip
+               "query_selection", "unsupervised_steps", "reward_kwargs"}  # fmt: skip
 TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "button-press-v3", "door-open-v3", "sweep-into-v3", "drawer-open-v3",
          "walker-run"}  # fmt: skip
 #: tiny settings for CLI runs of a few hundred steps
@@ -133,7 +133,7 @@ def test_cli_trains_pebble_on_metaworld_with_default_hyperparams(tmp_path):
               "--eval-freq", "600", "--eval-episodes", "1", "-params", *TINY_PEBBLE, cwd=tmp_path)  # fmt: skip
     with open(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/sb3_pride-button-press-v3/config.yml") as file:
         config = dict(yaml.load(file, Loader=yaml.UnsafeLoader))
-    assert config["reward_epochs"] == 10 and config["learning_rate"] == 3e-4 and config["ent_coef"] == "auto_0.1"
+    assert config["reward_kwargs"]["epochs"] == 10 and config["learning_rate"] == 3e-4 and config["ent_coef"] == "auto_0.1"
     model = PEBBLE.load(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/sb3_pride-button-press-v3.zip")
     assert model.num_timesteps == 600 and model.feedback_asked == 30
     evaluations = np.load(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/evaluations.npz")
@@ -173,7 +173,7 @@ def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp
               "--eval-freq", "0", "-i", str(run / "rl_model_300_steps.zip"), "-params", *params, cwd=tmp_path)  # fmt: skip
     assert "Loading the checkpoint's replay buffer" in out
     resumed = PEBBLE.load(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
-    assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.journal_entries == 20
+    assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.feedback.journal.included == 20
     assert len(PreferenceJournal(journal).read()) == 20  # feedback session 2 came back from the journal: nothing asked again
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
 
