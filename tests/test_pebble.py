@@ -322,3 +322,15 @@ def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo)
         retrains = model.diffusion_retrains
         report = model.retrain_generator()
         assert model.diffusion_retrains == retrains + 1 and model.replay_buffer.synthetic.size() == len(report.vectors)
+
+
+def test_structured_settings_given_to_load_change_the_saved_ones_entry_by_entry(tiny_kwargs, tmp_path):
+    """load(reward_kwargs=...) keeps the saved entries it does not name; an old flat name warns and is checked too."""
+    kwargs = merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(dynamics_consistency=dict(epochs=1, max_transitions=100))))
+    PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs).save(tmp_path / "model")
+    loaded = PEBBLE.load(tmp_path / "model", reward_kwargs=dict(epochs=7))
+    assert loaded.reward_kwargs["epochs"] == 7 and tuple(loaded.reward_kwargs["net_arch"]) == (32, 32)
+    assert loaded.reward_learner.consistency is not None
+    with pytest.warns(DeprecationWarning, match="dynamics_consistency is deprecated"):
+        with pytest.raises(ValueError, match="loading cannot turn it on or off"):
+            PEBBLE.load(tmp_path / "model", dynamics_consistency=False)

@@ -485,12 +485,6 @@ def test_non_numbers_for_float_parameters_are_refused_naming_them(algo, param, v
         build(algo, **{param: value})
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="the package turns each structured setting into dict(value) before checking it "
-    "(migration.move_renamed_settings): a value that is not a dict fails with dict()'s own error, or is taken (a list "
-    "of pairs), without naming the setting",
-)
 @pytest.mark.parametrize(
     ("param", "value"),
     [

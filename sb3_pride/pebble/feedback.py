@@ -187,9 +187,10 @@ class FeedbackLoop:
         if isinstance(teacher, str):
             if self.named_teacher is None or self.named_teacher[0] != teacher:
                 self.named_teacher = (teacher, make_teacher(teacher, seed=seed))
-            teacher = self.named_teacher[1]
-        self.teacher = teacher
-        return teacher
+            self.teacher = self.named_teacher[1]
+        else:
+            self.teacher = make_teacher(teacher)  # checked: a callable or an InteractiveTeacher
+        return self.teacher
 
     def attach(
         self,

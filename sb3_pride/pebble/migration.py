@@ -28,6 +28,9 @@ RENAMED_PEBBLE_SETTINGS: dict[str, tuple[str, str]] = {
     "critic_reset_updates": ("pretraining_kwargs", "critic_reset_updates"),
 }
 
+#: PEBBLE's structured settings
+STRUCTURED_SETTINGS = ("reward_kwargs", "query_kwargs", "pretraining_kwargs")
+
 #: PRIDE's settings of version 0.1.0 and their place in ``generator_kwargs``
 RENAMED_GENERATOR_SETTINGS: dict[str, str] = {
     "diffusion_width": "width",
@@ -70,6 +73,9 @@ def move_renamed_settings(given: dict[str, Any], structured: dict[str, dict[str,
     unknown = sorted(set(given) - set(RENAMED_PEBBLE_SETTINGS))
     if unknown:
         raise TypeError(f"PEBBLE got unexpected keyword arguments {unknown}")
+    for name, value in structured.items():
+        if value is not None and not isinstance(value, dict):
+            raise ValueError(f"{name} must be a dict of settings or None, got {value!r}")
     moved = {name: dict(value or {}) for name, value in structured.items()}
     for old, value in given.items():
         setting, key = RENAMED_PEBBLE_SETTINGS[old]

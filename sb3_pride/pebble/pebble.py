@@ -25,10 +25,10 @@ from sb3_pride.common.teachers import InteractiveTeacher, Teacher
 from sb3_pride.common.utils import check_positive_ints, seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
-from sb3_pride.pebble.migration import migrate_parameters, migrate_saved_model
+from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS, STRUCTURED_SETTINGS, migrate_parameters, migrate_saved_model
 from sb3_pride.pebble.settings import (
     check_feedback_settings,
-    check_reloaded_consistency,
+    loaded_settings,
     check_sac_arguments,
     preference_settings,
 )
@@ -211,13 +211,12 @@ class PEBBLE(SAC):
     def load(cls, path, env: GymEnv | None = None, device: th.device | str = "auto", custom_objects=None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
         """
-        SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``. New
-        ``reward_kwargs`` may change REED's ``dynamics_consistency`` settings but not turn it on or off (its heads are
-        saved with the model) nor change its optimizer (whose state is saved too).
+        SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``, and a
+        structured setting given (``reward_kwargs``, ...) changes the saved one entry by entry (``loaded_settings``).
         """
-        if "reward_kwargs" in kwargs:
+        if set(kwargs) & {*STRUCTURED_SETTINGS, *RENAMED_PEBBLE_SETTINGS}:
             saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-            check_reloaded_consistency(path, saved or {}, kwargs["reward_kwargs"])
+            kwargs = loaded_settings(path, saved or {}, kwargs)
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         if env is not None and model.env is not None:
             check_env(model.env, model.segment_length, model.verbose)

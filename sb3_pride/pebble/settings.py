@@ -10,7 +10,12 @@ from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import RewardLearner
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option
 from sb3_pride.pebble.feedback import FeedbackSchedule
-from sb3_pride.pebble.migration import migrate_saved_model, move_renamed_settings
+from sb3_pride.pebble.migration import (
+    RENAMED_PEBBLE_SETTINGS,
+    STRUCTURED_SETTINGS,
+    migrate_saved_model,
+    move_renamed_settings,
+)
 
 #: ``pretraining_kwargs``: k of the k-NN state entropy (PEBBLE: 5), gradient steps on r̂ after the critic reset (100)
 PRETRAINING_DEFAULTS = {"entropy_k": 5, "critic_reset_updates": 100}
@@ -54,23 +59,31 @@ def check_feedback_settings(
         raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
 
 
-def check_reloaded_consistency(path: Any, saved: dict[str, Any], reward_kwargs: dict[str, Any] | None) -> None:
+def loaded_settings(path: Any, saved: dict[str, Any], kwargs: dict[str, Any]) -> dict[str, Any]:
     """
-    ``reward_kwargs`` given to ``load()`` may change REED's ``dynamics_consistency`` settings but not turn it on or off
-    (its heads are saved with the model) nor change its optimizer (whose state is saved too).
+    ``load()``'s keyword arguments with each structured setting given (``reward_kwargs``, ...) merged into the saved
+    one entry by entry, and the flat names of earlier versions moved into them (with a ``DeprecationWarning``).
+    REED's ``dynamics_consistency`` may change its settings but not be turned on or off (its heads are saved with the
+    model) nor change its optimizer (whose state is saved too).
 
     :param saved: the saved model's attributes (``load_from_zip_file``'s data)
     """
     migrate_saved_model(saved)
+    renamed = {name: kwargs.pop(name) for name in list(kwargs) if name in RENAMED_PEBBLE_SETTINGS}
+    given = move_renamed_settings(renamed, {name: kwargs.pop(name, None) for name in STRUCTURED_SETTINGS})
+    for name in STRUCTURED_SETTINGS:
+        if given[name]:
+            kwargs[name] = {**(saved.get(name) or {}), **given[name]}
     was, now = (
-        make_option("dynamics_consistency", value.get("dynamics_consistency", False), DynamicsConsistency)
-        for value in (saved.get("reward_kwargs") or {}, reward_kwargs or {})
+        make_option("dynamics_consistency", settings.get("dynamics_consistency", False), DynamicsConsistency)
+        for settings in (saved.get("reward_kwargs") or {}, kwargs.get("reward_kwargs", saved.get("reward_kwargs")) or {})
     )
     if (was is None) != (now is None) or (was is not None and now is not None and was.optimizer != now.optimizer):
         raise ValueError(
             f"reward_kwargs: the model at {path} was saved with dynamics_consistency={was}, and loading cannot turn it "
             f"on or off nor change its optimizer (got {now}); leave dynamics_consistency out"
         )
+    return kwargs
 
 
 def check_sac_arguments(
