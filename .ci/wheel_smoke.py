@@ -20,8 +20,8 @@ tiny = dict(
     queries_per_session=10,
     segment_length=10,
     batch_size=32,
-    reward_net_arch=(16,),
-    critic_reset_updates=5,
+    reward_kwargs=dict(net_arch=(16,)),
+    pretraining_kwargs=dict(critic_reset_updates=5),
     policy_kwargs=dict(net_arch=[16]),
 )
 sb3_pride.PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", seed=0, **tiny).learn(400)

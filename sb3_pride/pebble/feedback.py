@@ -145,12 +145,12 @@ def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Seq
         return
     message = (
         f"the budget cannot be asked within the run: {remaining} queries remain of max_feedback, but the sessions "
-        f"planned before learn()'s total_timesteps ask {asked} ({len(plan)} sessions"
+        f"planned before learn()'s total_timesteps ask {asked} ({len(plan)} session{'' if len(plan) == 1 else 's'}"
         + (f", the last at step {plan[-1][0]})" if plan else ")")
         + "; lengthen the run, shorten feedback_interval or give a larger queries_per_session or schedule"
     )
     if schedule == "constant":
-        warnings.warn(message, stacklevel=4)
+        warnings.warn(message, stacklevel=6)  # the user's learn(): through FeedbackSchedule.check and SB3's learn
     else:
         raise ValueError(f"feedback_schedule={schedule!r}: {message}")
 
