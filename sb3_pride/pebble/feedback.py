@@ -150,7 +150,7 @@ def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Seq
         + "; lengthen the run, shorten feedback_interval or give a larger queries_per_session or schedule"
     )
     if schedule == "constant":
-        warnings.warn(message, stacklevel=6)  # the user's learn(): through FeedbackSchedule.check and SB3's learn
+        warnings.warn(message, stacklevel=7)  # the user's learn(): through FeedbackSchedule.check and SB3's learn
     else:
         raise ValueError(f"feedback_schedule={schedule!r}: {message}")
 
