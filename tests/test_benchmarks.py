@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
-from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS
+from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS, STRUCTURED_SETTINGS as STRUCTURED
 
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
@@ -311,7 +311,9 @@ def recorded_defaults(run, settings: dict) -> dict:
     above; today's for an argument it knew nothing of."""
     today = run.algorithm_defaults(settings["algo"])
     if "defaults" in settings:
-        return {**today, **{k: v for k, v in settings["defaults"].items() if k in today}}
+        # a structured setting recorded as None (its parts' defaults not spelled out yet) ran with its parts' defaults
+        recorded = {k: v for k, v in settings["defaults"].items() if k in today and not (k in STRUCTURED and v is None)}
+        return {**today, **recorded}
     return {**today, **DEFAULTS_BEFORE_RECORDED.get(settings["algo"], {})}
 
 
