@@ -342,6 +342,8 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         reference = reference_key(rows, row["task"])
         if reference is None or key == reference:
             continue
+        if row["specs"][0]["timesteps"] != rows[reference]["specs"][0]["timesteps"]:
+            continue  # runs of another length than the reference's: a P between them would say nothing
         final, final_reference = finals[key], finals[reference]
         if final is None or final_reference is None:
             continue
