@@ -213,6 +213,16 @@ def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
     return max(pebbles, key=lambda key: key[2]) if pebbles else None
 
 
+def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | None:
+    """SAC on the true reward for the task, with runs of this length: the ceiling each row is a share of."""
+    sacs = [
+        key
+        for key, row in rows.items()
+        if key[0] == task and row["algo"] == "sac" and row["specs"][0]["timesteps"] == timesteps
+    ]
+    return sacs[0] if sacs else None
+
+
 def task_order(task: str) -> tuple[int, str]:
     """DMC's tasks first, in the paper's order, then the others by name."""
     return (TASK_ORDER.index(task), "") if task in TASK_ORDER else (len(TASK_ORDER), task)
@@ -227,6 +237,12 @@ def spread(values: np.ndarray | None) -> dict[str, Any] | None:
         "std": round(float(values.std()), 4),
         "per_seed": [round(float(value), 3) for value in values],
     }
+
+
+def share_text(row: dict) -> str:
+    """A row's return as a share of the SAC ceiling's (e.g. ``0.62``), or — where the task has no ceiling runs."""
+    share = row.get("share_of_ceiling")
+    return "—" if share is None else f"{share:.2f}"
 
 
 def budget_text(row: dict) -> str:
@@ -385,6 +401,12 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
             grids = list(dict.fromkeys([from_grid, rows[key_x]["grid"], rows[key_y]["grid"]]))  # its runs' grid files
             command = " && ".join(f"python benchmarks/grid.py {path}" for path in grids)
             comparisons.append({**entry, "grid": from_grid, "command": command})
+    for key, row in rows.items():
+        # each row's primary return as a share of SAC's on the true reward (runs of the same length), the ceiling
+        ceiling = ceiling_key(rows, row["task"], row["specs"][0]["timesteps"])
+        own, top = finals[key], None if ceiling is None else finals[ceiling]
+        share = None if own is None or top is None or top.mean() == 0 else own.mean() / top.mean()
+        row["share_of_ceiling"] = None if share is None else round(float(share), 3)
     tasks: dict[str, list[dict]] = {}
     references = {task: reference_key(rows, task) for task, *_ in rows}
     # each task's PEBBLE reference first, then its rows in the order of the grid files
@@ -479,15 +501,16 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
                 "",
             ]
         lines += [f"| configuration | queries asked | u | seeds | code | return (last {plot.LAST_EVALUATIONS} evaluations) | "
-                  "final return | area under curve | P(> PEBBLE) [95% CI] | Mann–Whitney p | without best 1 / 2 | "
-                  "reproduce |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "share of SAC | final return | area under curve | P(> PEBBLE) [95% CI] | Mann–Whitney p | "
+                  "without best 1 / 2 | reproduce |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for row in rows:
             entry, ratio = row["against_pebble"], cell(row["ratio"])
             area = "" if row["area_under_curve"] is None else number(row["area_under_curve"])
             mann_whitney = "—" if entry is None else mann_whitney_text(entry["mann_whitney_p"]).removeprefix("= ")
             lines.append(f"| {row['name']} (`{row['configuration']}`) | {budget_text(row)} | {ratio} | {len(row['seeds'])} | "
-                         f"{code_text(row['code'])} | {final_text(row)} | {final_text(row, 'final_return')} | {area} | "
+                         f"{code_text(row['code'])} | {final_text(row)} | {share_text(row)} | "
+                         f"{final_text(row, 'final_return')} | {area} | "
                          f"{p_text(entry)} | {mann_whitney} | {without_best_text(entry)} | `{row['command']}` |")  # fmt: skip
         comparisons = [c for c in data["comparisons"] if c["task"] == task]
         if comparisons:
@@ -555,14 +578,14 @@ def cell(value: Any) -> str:
 def render_summary(data: dict[str, Any]) -> str:
     """The README's summary table: the rows of the grid files marked ``summary: true``."""
     lines = [f"| task | configuration | queries asked | u | seeds | code | return (last {plot.LAST_EVALUATIONS} evaluations) | "
-             "P(better than PEBBLE) [95% CI], Mann–Whitney p |",
-             "|---|---|---|---|---|---|---|---|"]  # fmt: skip
+             "share of SAC | P(better than PEBBLE) [95% CI], Mann–Whitney p |",
+             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
     for task, rows in data["tasks"].items():
         for row in rows:
             if row["summary"]:
                 ratio = cell(row["ratio"])
                 lines.append(f"| {task} | {row['name']} | {budget_text(row)} | {ratio} | {len(row['seeds'])} | "
-                             f"{code_text(row['code'])} | {final_text(row)} | "
+                             f"{code_text(row['code'])} | {final_text(row)} | {share_text(row)} | "
                              f"{p_text(row['against_pebble'], mann_whitney=True)} |")  # fmt: skip
     budgets: dict[str, list[str]] = {}
     for task, rows in data["tasks"].items():
@@ -574,7 +597,8 @@ def render_summary(data: dict[str, Any]) -> str:
     resamples = f", {bootstrap['resamples']:,} resamples" if bootstrap else ""
     return (
         "\n".join(lines)
-        + f"\n\nTrue return, mean of each run's last {plot.LAST_EVALUATIONS} evaluations, mean ± std over seeds; queries: "
+        + f"\n\nTrue return, mean of each run's last {plot.LAST_EVALUATIONS} evaluations, mean ± std over seeds; share of SAC: "
+        "that return over SAC's on the true reward (the ceiling; — until its runs are in); queries: "
         "what the runs asked (the budget set beside it where that differs); u: PRIDE's synthetic share; P: probability "
         f"of improvement over PEBBLE at the task's full budget ({basis}), rliable, 95% bootstrap interval{resamples}; "
         f"p: one-sided Mann–Whitney; {CODE_NOTE}. Every row, its runs, the command that re-creates them and what each "

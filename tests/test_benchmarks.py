@@ -690,3 +690,26 @@ def test_every_committed_p_reads_what_its_rows_seeds_give(page):
             x, y = (np.array(by_label[entry[side]]["primary_return"]["per_seed"]) for side in ("x", "y"))
             again = page.improvement(x, y, reps=bootstrap["resamples"], seed=bootstrap["seed"])
             assert {k: entry[k] for k in again} == again, (task, entry["x"], entry["y"])
+
+
+def test_each_row_reads_as_a_share_of_the_sac_ceiling(page, tmp_path):
+    """A row's return over SAC's on the true reward (the task's ceiling, runs of the same length); — without SAC runs.
+    A share that cannot tell a row from the ceiling would read 1 for both: PEBBLE at half of SAC reads 0.5."""
+    grid_text = "runs:\n  - {configurations: [pebble, sac], tasks: [walker-walk], seeds: 0-1, feedback: [400]}\n"
+    path = write_grid(tmp_path, grid_text)
+    for seed in (0, 1):
+        write_coded_run(tmp_path / "runs", "pebble", seed, 300.0, "a")
+        name = f"sac_walker-walk_s{seed}"
+        (tmp_path / "runs" / name).mkdir(parents=True)
+        settings = {"algo": "sac", "task": "walker-walk", "seed": seed, "feedback": None, "ratio": None, "tag": ""}
+        (tmp_path / "runs" / name / "settings.json").write_text(json.dumps(settings))
+        (tmp_path / "runs" / name / "curve.csv").write_text("step,true_return,success\n" + "".join(
+            f"{step},600.0,\n" for step in (5000, 10000, 15000)))  # fmt: skip
+        (tmp_path / "runs" / name / "result.json").write_text(json.dumps({"final_return": 600.0}))
+    pebble, sac = page.recount([path], tmp_path / "runs")["tasks"]["walker-walk"]
+    assert pebble["share_of_ceiling"] == 0.5 and sac["share_of_ceiling"] == 1.0
+    assert page.share_text(pebble) == "0.50" and page.share_text({**pebble, "share_of_ceiling": None}) == "—"
+    (tmp_path / "alone").mkdir()
+    only_pebble = write_grid(tmp_path / "alone", "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-1}\n")
+    alone = page.recount([only_pebble], tmp_path / "runs")["tasks"]["walker-walk"][0]
+    assert alone["share_of_ceiling"] is None
