@@ -57,14 +57,14 @@ def test_a_schedule_that_cannot_ask_the_budget_within_the_run_is_refused_before_
     model = PEBBLE(
         "MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule="shrinking", preference_journal=journal, **tiny_kwargs
     )
-    # a 1500-step run: sessions at 300, 600, 900 and 1200 ask 16 + 12 + 8 + 4 = 40 of the 60
+    # a 1500-step run: sessions at 300, 600, 900, 1200 and 1500 (its last step) ask 16 + 12 + 8 + 4 + 1 = 41 of the 60
     with pytest.raises(
-        ValueError, match=r"feedback_schedule='shrinking': the budget cannot be asked within the run: 60 .* ask 40"
+        ValueError, match=r"feedback_schedule='shrinking': the budget cannot be asked within the run: 60 .* ask 41"
     ):
         model.learn(1500)
     assert model.num_timesteps == 0 and model.feedback_asked == 0 and not journal.exists()
     # long enough: sessions at 300, 600, 900 and 1200 ask 19 + 18 + 17 + 6 of a 6000-step run
-    assert sum(n for _, n in model.label_schedule.plan(1, 300, 300, 6000, 60)) == 60
+    assert sum(n for _, n in FeedbackSchedule("shrinking", 20).plan(1, 300, 300, 6000, 60)) == 60
     model.learn(1300, reset_num_timesteps=False)  # a run in parts is not checked: it asks as its schedule says
     assert model.feedback_asked == 15 + 10 + 6 + 1  # int(20 (1300 - t) / 1300) at t = 300, 600, 900, 1200
 
@@ -91,4 +91,31 @@ def test_the_schedule_is_saved_with_the_model(tiny_kwargs, tmp_path):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", feedback_schedule=[30, 20], **tiny_kwargs)
     model.save(tmp_path / "model")
     loaded = PEBBLE.load(tmp_path / "model")
-    assert list(loaded.feedback_schedule) == [30, 20] and loaded.label_schedule.size(1, 0, 1) == 30
+    assert list(loaded.feedback_schedule) == [30, 20]
+
+
+def test_a_session_due_at_the_last_step_counts_as_asked_within_the_run(tiny_kwargs):
+    """SB3 counts a step before the callbacks run, so a session due at the run's last step is asked: no warning."""
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **{**tiny_kwargs, "max_feedback": 40})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        model.learn(600)  # sessions at 300 and 600
+    assert model.feedback_asked == 40
+
+
+def test_a_refused_run_leaves_the_schedule_where_it_was(tiny_kwargs):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule=[20], **tiny_kwargs)
+    model.learn(350, reset_num_timesteps=False)  # the first session at 300: the next at 600
+    assert model.next_feedback_step == 600
+    for _ in range(2):  # a whole run of 50 steps cannot ask the 40 that remain
+        with pytest.raises(ValueError, match="feedback_schedule"):
+            model.learn(50)
+        assert model.next_feedback_step == 600 and model.num_timesteps == 350
+
+
+def test_the_schedule_and_the_selection_are_read_when_a_session_is_asked(tiny_kwargs):
+    """Settings changed on a built model take effect at the next session, as SB3's own attributes do."""
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
+    model.queries_per_session = 5
+    model.learn(350, reset_num_timesteps=False)
+    assert model.feedback_asked == 5

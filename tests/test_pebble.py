@@ -334,3 +334,34 @@ def test_structured_settings_given_to_load_change_the_saved_ones_entry_by_entry(
     with pytest.warns(DeprecationWarning, match="dynamics_consistency is deprecated"):
         with pytest.raises(ValueError, match="loading cannot turn it on or off"):
             PEBBLE.load(tmp_path / "model", dynamics_consistency=False)
+
+
+def test_robust_labels_and_consistency_both_survive_a_save_and_load(tiny_kwargs, tmp_path):
+    """RIME's running selection is the reward learner's data and REED's heads its weights: both are saved."""
+    options = dict(
+        robust_labels=True, dynamics_consistency=dict(epochs=1, max_transitions=100, projection_size=8, hidden_size=8)
+    )
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **merge_kwargs(tiny_kwargs, dict(reward_kwargs=options)))
+    model.learn(650)
+    selection = model.reward_learner.label_selection
+    assert selection.epochs > 0
+    model.save(tmp_path / "model")
+    loaded = PEBBLE.load(tmp_path / "model")
+    assert loaded.reward_learner.label_selection.epochs == selection.epochs
+    assert loaded.reward_learner.label_selection.beta == selection.beta
+    for saved, restored in zip(model.consistency_model.parameters(), loaded.consistency_model.parameters(), strict=True):
+        assert th.equal(saved, restored)
+
+
+def test_an_old_models_settings_change_when_it_is_loaded_with_new_ones():
+    """A model saved by 0.2.0 (flat settings) loaded with reward_kwargs, or an old flat name, takes the new value."""
+    from pathlib import Path
+
+    path = Path(__file__).parent / "data" / "pebble_0.2.0.zip"
+    loaded = PEBBLE.load(path, env=gym.make("Pendulum-v1"), reward_kwargs=dict(epochs=5), query_kwargs=dict(hybrid_replay=0.0))
+    assert loaded.reward_learner.epochs == 5 and loaded.query_sampler.hybrid_replay == 0.0
+    assert tuple(loaded.reward_kwargs["net_arch"]) == (32, 32)  # the saved entries it did not name are kept
+    with pytest.warns(DeprecationWarning, match="reward_epochs is deprecated") as caught:
+        loaded = PEBBLE.load(path, env=gym.make("Pendulum-v1"), reward_epochs=7)
+    assert loaded.reward_learner.epochs == 7
+    assert any(warning.filename == __file__ for warning in caught)  # it names the user's line, so Python shows it

@@ -289,6 +289,7 @@ class QuerySampler:
         labeled_inputs: np.ndarray,
         asked_before: set[str],
         first: bool,
+        selection: str | None = None,
     ) -> SegmentPairs | None:
         """
         ``n_queries`` pairs to ask about; pairs whose ``query_id`` is in ``asked_before`` are never chosen again.
@@ -296,13 +297,14 @@ class QuerySampler:
         :param member_returns: the ensemble members' segment returns of candidate pairs' inputs (members, n, 2)
         :param labeled_inputs: the inputs of the pairs labelled so far (the k-center selections' covered points)
         :param first: the first feedback session, always uniform
+        :param selection: the selection of this session (None: the sampler's ``selection``)
         :return: the chosen pairs (fewer when ``asked_before`` held candidates), or None when no segment fits in the
             stored episodes yet (a warning, once, when every finished episode is shorter than a segment)
         """
         if n_queries == 0:
             shape = (0, 2, self.segment_length)
             return SegmentPairs(np.zeros((*shape, *buffer.obs_shape)), np.zeros((*shape, buffer.action_dim)), np.zeros(shape))
-        selection = "uniform" if first else self.selection
+        selection = "uniform" if first else (selection or self.selection)
         n_candidates = n_queries if selection == "uniform" else n_queries * self.candidates_multiplier
         candidates = sample_segment_pairs(buffer, n_candidates, self.segment_length, self.max_query_episodes, rng)
         if candidates is None:
@@ -337,8 +339,10 @@ class QuerySampler:
         Not an error: longer episodes may come, and the session is tried again a segment later; an env whose step
         limit is shorter than a segment is refused when it is attached.
         """
+        if self.warned_short_episodes:
+            return
         lengths = episode_lengths(buffer)
-        if self.warned_short_episodes or not lengths or max(lengths) >= self.segment_length:
+        if not lengths or max(lengths) >= self.segment_length:
             return
         self.warned_short_episodes = True
         warnings.warn(

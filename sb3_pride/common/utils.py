@@ -5,6 +5,8 @@ seeding of their layers and draws.
 
 import contextlib
 import dataclasses
+import os
+import sys
 from collections.abc import Callable, Iterator
 from typing import Any
 
@@ -87,3 +89,17 @@ def seeded(seed: int, device: th.device | None = None) -> Iterator[None]:
             with th.cuda.device(device):
                 th.cuda.manual_seed(seed)
         yield
+
+
+def caller_stacklevel(skipped: tuple[str, ...] = ("sb3_pride", "stable_baselines3")) -> int:
+    """
+    The ``stacklevel`` for ``warnings.warn`` (called by the function that calls this one) that names the user's line:
+    the first frame outside the packages ``skipped``. Python shows a ``DeprecationWarning`` only where it names
+    ``__main__``'s code, so a fixed level would hide it behind the algorithm's own frames.
+    """
+    modules = [sys.modules.get(name) for name in skipped]
+    folders = [os.path.dirname(module.__file__) for module in modules if module is not None and module.__file__]
+    frame, level = sys._getframe(2), 2  # the caller of the function that warns: stacklevel 2
+    while frame.f_back is not None and any(frame.f_code.co_filename.startswith(folder + os.sep) for folder in folders):
+        frame, level = frame.f_back, level + 1
+    return level

@@ -17,6 +17,7 @@ from stable_baselines3.common.logger import Logger
 
 from sb3_pride.common.journal import JournalBook, JournalEntry, merge_answers
 from sb3_pride.common.queries import SegmentPairs
+from sb3_pride.common.utils import caller_stacklevel
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
 
 if TYPE_CHECKING:
@@ -124,7 +125,7 @@ class FeedbackSchedule:
         session whose episodes hold no segment yet, or whose answers are late, comes later than planned).
         """
         planned = []
-        while remaining > 0 and step < total_steps:
+        while remaining > 0 and step <= total_steps:  # a session due at the last step is asked: SB3 counts it first
             queries = min(self.size(session, step, total_steps), remaining)
             planned.append((step, queries))
             remaining, session, step = remaining - queries, session + 1, step + interval
@@ -150,7 +151,7 @@ def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Seq
         + "; lengthen the run, shorten feedback_interval or give a larger queries_per_session or schedule"
     )
     if schedule == "constant":
-        warnings.warn(message, stacklevel=7)  # the user's learn(): through FeedbackSchedule.check and SB3's learn
+        warnings.warn(message, stacklevel=caller_stacklevel())  # the user's learn()
     else:
         raise ValueError(f"feedback_schedule={schedule!r}: {message}")
 

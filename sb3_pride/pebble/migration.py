@@ -8,6 +8,8 @@ under old names moved to the parts that own it now.
 import warnings
 from typing import Any
 
+from sb3_pride.common.utils import caller_stacklevel
+
 #: PEBBLE's settings of versions 0.1.0 and 0.2.0 that are now entries of a structured setting: (setting, key)
 RENAMED_PEBBLE_SETTINGS: dict[str, tuple[str, str]] = {
     "ensemble_size": ("reward_kwargs", "ensemble_size"),
@@ -50,11 +52,9 @@ RENAMED_GENERATOR_SETTINGS: dict[str, str] = {
     "dynamics_kwargs": "dynamics_kwargs",
 }
 
-#: torch state dicts saved under other names: a model of 0.1.0 (PRIDE's diffusion), of 0.1.0 and 0.2.0 (REED's heads)
+#: torch state dicts saved under other names: a PRIDE of 0.1.0 (its diffusion)
 RENAMED_PARAMETERS: dict[str, str] = {
     "diffusion": "generator.diffusion",
-    "consistency_model": "reward_learner.consistency",
-    "consistency_model.optimizer": "reward_learner.consistency.optimizer",
 }
 
 #: attributes of models saved by 0.1.0 and 0.2.0 that hold nothing this version reads
@@ -81,7 +81,8 @@ def move_renamed_settings(given: dict[str, Any], structured: dict[str, dict[str,
         setting, key = RENAMED_PEBBLE_SETTINGS[old]
         if key in moved[setting]:
             raise ValueError(f"{old} is given twice: as a keyword and as {setting}[{key!r}]; give it in {setting} only")
-        warnings.warn(f"{old} is deprecated: give it as {setting}={{{key!r}: ...}}", DeprecationWarning, stacklevel=3)
+        message = f"{old} is deprecated: give it as {setting}={{{key!r}: ...}}"
+        warnings.warn(message, DeprecationWarning, stacklevel=caller_stacklevel())
         moved[setting][key] = value
     return moved
 

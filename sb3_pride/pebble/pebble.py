@@ -188,9 +188,9 @@ class PEBBLE(SAC):
         self.reward_learner = RewardLearner(obs_dim, action_dim, self.segment_length, device=self.device, **self.reward_kwargs)
         if carried is not None and self.reward_learner.label_selection is not None:
             self.reward_learner.label_selection = carried
-        self.reward_model = self.reward_learner.ensemble
+        # r̂ and REED's heads are saved as state dicts under names of their own (the learner's data is saved apart)
+        self.reward_model, self.consistency_model = self.reward_learner.ensemble, self.reward_learner.consistency
         self.query_sampler = QuerySampler.from_settings(self.segment_length, self.query_selection, self.query_kwargs)
-        self.label_schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
         included = self.__dict__.pop("migrated_journal_entries", self.feedback.journal.included)
@@ -281,13 +281,12 @@ class PEBBLE(SAC):
 
     def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
                      tb_log_name: str = "run", progress_bar: bool = False) -> tuple[int, BaseCallback]:  # fmt: skip
-        if reset_num_timesteps and self.num_timesteps > 0:
-            self._shift_schedules(-self.num_timesteps)  # the step count restarts at 0: keep the remaining distances
         if reset_num_timesteps:  # a whole run: its budget must be asked within it (a run in parts is not checked)
-            remaining = self.max_feedback - self.feedback_asked
-            self.label_schedule.check(
-                self.feedback_sessions + 1, self.next_feedback_step, self.feedback_interval, total_timesteps, remaining
-            )
+            schedule, next_step = FeedbackSchedule(self.feedback_schedule, self.queries_per_session), self.next_feedback_step
+            remaining, next_step = self.max_feedback - self.feedback_asked, max(0, next_step - self.num_timesteps)
+            schedule.check(self.feedback_sessions + 1, next_step, self.feedback_interval, total_timesteps, remaining)
+            if self.num_timesteps > 0:
+                self._shift_schedules(-self.num_timesteps)  # the step count restarts at 0: keep the remaining distances
         if reset_num_timesteps or self._last_obs is None:
             # SB3 resets the env now: the episode in progress ends here, or a query segment could span two episodes
             self.real_buffer.end_episodes()
@@ -322,12 +321,13 @@ class PEBBLE(SAC):
         self.feedback.resolve(self.teacher, self.seed)
         sampler, session = self.query_sampler, self.feedback_sessions + 1
         returns, labeled = self.reward_model.member_segment_returns, self.preferences.inputs
-        size = self.label_schedule.size(session, self.num_timesteps, self._total_timesteps)
+        schedule, selection = FeedbackSchedule(self.feedback_schedule, self.queries_per_session), self.query_selection
+        size = schedule.size(session, self.num_timesteps, self._total_timesteps)
         return self.feedback.publish(
             self.feedback.context(session, self.feedback_asked, self.max_feedback),
             n_queries=min(size, self.max_feedback - self.feedback_asked),
             choose=lambda n, asked: sampler.choose(
-                self.real_buffer, n, self.preference_rng, returns, labeled, asked, first=session == 1
+                self.real_buffer, n, self.preference_rng, returns, labeled, asked, first=session == 1, selection=selection
             ),
             step=self.num_timesteps,
             asynchronous=self.asynchronous_feedback if asynchronous is None else asynchronous,
@@ -431,13 +431,13 @@ class PEBBLE(SAC):
 
     def _excluded_save_params(self) -> list[str]:
         # the parts are made again from the settings; the networks are saved as state dicts
-        return [*super()._excluded_save_params(), "reward_model", "query_sampler", "label_schedule", "replay_rewards"]
+        return [*super()._excluded_save_params(), "reward_model", "consistency_model", "query_sampler", "replay_rewards"]
 
     def _get_torch_save_params(self) -> tuple[list[str], list[str]]:
         state_dicts, variables = super()._get_torch_save_params()
         state_dicts = [*state_dicts, "reward_model", "reward_model.optimizer"]
-        if self.reward_learner.consistency is not None:
-            state_dicts += ["reward_learner.consistency", "reward_learner.consistency.optimizer"]
+        if self.consistency_model is not None:
+            state_dicts += ["consistency_model", "consistency_model.optimizer"]
         return state_dicts, variables
 
     def learn(self: SelfPEBBLE, total_timesteps: int, callback: MaybeCallback = None, log_interval: int = 4,

@@ -68,12 +68,17 @@ def loaded_settings(path: Any, saved: dict[str, Any], kwargs: dict[str, Any]) ->
 
     :param saved: the saved model's attributes (``load_from_zip_file``'s data)
     """
+    flat = [name for name in saved if name in RENAMED_PEBBLE_SETTINGS]  # a model of 0.1.0 or 0.2.0
     migrate_saved_model(saved)
     renamed = {name: kwargs.pop(name) for name in list(kwargs) if name in RENAMED_PEBBLE_SETTINGS}
     given = move_renamed_settings(renamed, {name: kwargs.pop(name, None) for name in STRUCTURED_SETTINGS})
     for name in STRUCTURED_SETTINGS:
         if given[name]:
             kwargs[name] = {**(saved.get(name) or {}), **given[name]}
+    for old in flat:  # SB3 restores the saved flat value before the migration reads it: give it the merged one
+        setting, key = RENAMED_PEBBLE_SETTINGS[old]
+        if key in given[setting]:
+            kwargs[old] = kwargs[setting][key]
     was, now = (
         make_option("dynamics_consistency", settings.get("dynamics_consistency", False), DynamicsConsistency)
         for settings in (saved.get("reward_kwargs") or {}, kwargs.get("reward_kwargs", saved.get("reward_kwargs")) or {})
