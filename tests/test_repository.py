@@ -267,7 +267,7 @@ def test_a_labels_way_passes_through_few_pebble_methods(tiny_kwargs) -> None:
 
     from sb3_pride import PEBBLE
 
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs).learn(350)  # pre-training, then session 1
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs).learn(350)  # pre-training, then the first feedback
     assert model.publish_queries(asynchronous=False)
     called: set[str] = set()
 

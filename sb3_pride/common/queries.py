@@ -1,5 +1,6 @@
 """Segment pairs for preference queries: where segments may start, how candidates are chosen."""
 
+import inspect
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -257,7 +258,9 @@ class QuerySampler:
     @classmethod
     def from_settings(cls, segment_length: int, selection: str, query_kwargs: Any) -> "QuerySampler":
         """A sampler of PEBBLE's ``query_kwargs``; a dict of other entries is refused, naming ``query_kwargs``."""
-        taken = ("candidates_multiplier", "max_query_episodes", "hybrid_replay")
+        taken = [
+            name for name in inspect.signature(cls.__init__).parameters if name not in ("self", "segment_length", "selection")
+        ]
         if not isinstance(query_kwargs, dict) or set(query_kwargs) - set(taken):
             raise ValueError(f"query_kwargs must be a dict of QuerySampler's settings {list(taken)}, got {query_kwargs!r}")
         return cls(segment_length, selection, **query_kwargs)
