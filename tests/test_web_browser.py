@@ -19,7 +19,7 @@ CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
 
 
 # in a real browser ---------------------------------------------------------------------------------------------------
-def _chromium():
+def chromium():
     from selenium import webdriver
     from selenium.webdriver.chrome.service import Service
 
@@ -47,7 +47,7 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
     training = threading.Thread(target=lambda: _learn(model, 500, errors), daemon=True)
     training.start()
 
-    driver = _chromium()
+    driver = chromium()
     try:
         driver.get(teacher.url)
         body = driver.find_element("tag name", "body")
@@ -66,6 +66,10 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
         # feedback session 2, picked up without a reload: right, left, equal
         for key, answered in ((Keys.ARROW_RIGHT, 1), (Keys.ARROW_LEFT, 2), (Keys.ARROW_DOWN, 3)):
             press(key, answered, session=2)
+        # r̂ learned from both sessions' labels: the page shows corr(r̂, r) after each
+        summary = driver.find_element("id", "reward-summary")
+        wait(lambda: summary.text.endswith("after 2 sessions (5 labels)"))
+        assert driver.find_element("id", "reward-curve").is_displayed()
     finally:
         driver.quit()
     training.join(timeout=120)
@@ -76,6 +80,8 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
     labels = [entry.label for entry in PreferenceJournal(journal).read()]
     np.testing.assert_array_equal(labels, [0, 0.5, np.nan, 1, 0, 0.5])
     assert model.feedback.journal.included == 6  # every line of the journal is in the model's preferences
+    shown = teacher.state()["reward_history"]
+    assert [(entry["session"], entry["labels"]) for entry in shown] == [(1, 2), (2, 5)]
 
 
 @pytest.mark.slow
@@ -97,7 +103,7 @@ def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwa
     drivers = {}
     try:
         for name in ("ana", "ben"):
-            drivers[name] = _chromium()
+            drivers[name] = chromium()
             drivers[name].get(teacher.links[name])
         shown = {name: wait(lambda d=driver: _playing(d)) for name, driver in drivers.items()}
         assert shown["ana"] != shown["ben"]  # two people, two different queries

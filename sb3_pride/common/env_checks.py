@@ -50,3 +50,11 @@ def check_episode_length(env: VecEnv, segment_length: int) -> None:
     limits = [spec.max_episode_steps for spec in specs if spec is not None and spec.max_episode_steps]
     if limits and min(limits) < segment_length:
         raise ValueError(f"segment_length={segment_length} is longer than an episode of this env ({min(limits)} steps)")
+
+
+def env_id(env: VecEnv | None) -> str | None:
+    """The gymnasium id of ``env``'s first env (None: no env, or one made without an id)."""
+    if env is None:
+        return None
+    spec = env.get_attr("spec", indices=0)[0]
+    return None if spec is None else spec.id

@@ -5,6 +5,7 @@ A preference label costs a person's time; a run may be killed at any moment. ``P
 answer (the pair's reward-model inputs and μ, or a skip) to a JSON-lines file and flushes it to disk before the
 answer is used, so a run resumed from an older checkpoint gets it back instead of asking again.
 ``atomic_write_path`` makes a checkpoint replace the previous one only once it is complete.
+``read_prior_preferences`` reads the answers of earlier runs' journals, for a new run to start from.
 """
 
 import base64
@@ -12,9 +13,10 @@ import contextlib
 import hashlib
 import json
 import os
-from collections.abc import Iterator
-from dataclasses import dataclass
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -83,11 +85,13 @@ def merge_answers(entries: list[JournalEntry]) -> list[JournalEntry]:
 
 class PreferenceJournal:
     """
-    An append-only JSON-lines file of the teacher's answers, one line per query:
-    ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}`` (with
-    ``"annotator"`` and ``"time"`` when the teacher gives them), and one line ``{"session": n, "undo": true}`` for each
-    answer taken back (a person's undo), which removes the session's last answer, or the session's last answer to
-    query ``"id"`` (by ``"annotator"``) when the line names them.
+    An append-only JSON-lines file of the teacher's answers. Its first line says what the answers are about:
+    ``{"journal": {"env_id": ..., "observation_shape": [...], "action_shape": [...], "segment_length": k,
+    "prior_preferences": [...]}}`` (the earlier journals the run started from, with their SHA-1 and labels); then one
+    line per query: ``{"session": n, "id": sha1, "label": μ or null, "shape": [2, k, d], "inputs": base64 float32}``
+    (with ``"annotator"`` and ``"time"`` when the teacher gives them), and one line ``{"session": n, "undo": true}`` for
+    each answer taken back (a person's undo), which removes the session's last answer, or the session's last answer
+    to query ``"id"`` (by ``"annotator"``) when the line names them.
 
     :param path: the file (created with its folder on the first answer)
     """
@@ -95,8 +99,25 @@ class PreferenceJournal:
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
 
-    def read(self) -> list[JournalEntry]:
-        """Every entry, oldest first; a last line cut by a crash in the middle of a write is ignored."""
+    def header(self) -> dict | None:
+        """What the answers are about (the first line's ``"journal"``), None when the file has no such line."""
+        if not self.path.exists():
+            return None
+        with open(self.path) as file:
+            first = file.readline()
+        try:
+            record = json.loads(first)
+        except json.JSONDecodeError:
+            return None
+        return record.get("journal") if isinstance(record, dict) and isinstance(record.get("journal"), dict) else None
+
+    def read(self, strict: bool = False) -> list[JournalEntry]:
+        """
+        Every entry, oldest first, skips and undos applied as the run applied them.
+
+        :param strict: False: a last line cut by a crash in the middle of a write is ignored (the run's own journal,
+            resumed); True: it is refused (an earlier run's journal, read whole or not at all)
+        """
         if not self.path.exists():
             return []
         entries: list[JournalEntry] = []
@@ -107,9 +128,14 @@ class PreferenceJournal:
             try:
                 record = json.loads(line)
             except json.JSONDecodeError:
-                if number == len(lines):  # the torn last line of a killed writer (no newline yet)
+                if number == len(lines) and not strict:  # the torn last line of a killed writer (no newline yet)
                     break
-                raise ValueError(f"preference_journal {self.path}: line {number} is not JSON") from None
+                torn = " (a last line cut in the middle of a write)" if number == len(lines) else ""
+                raise ValueError(f"preference_journal {self.path}: line {number} is not JSON{torn}") from None
+            if not isinstance(record, dict) or "journal" in record:
+                if number == 1 and isinstance(record, dict):
+                    continue
+                raise ValueError(f"preference_journal {self.path}: line {number} is not an answer")
             if record.get("undo"):
                 undone = undone_index(entries, record["session"], record.get("id"), record.get("annotator"))
                 if undone is None:
@@ -148,6 +174,12 @@ class PreferenceJournal:
                 **({} if entry.time is None else {"time": entry.time}),
             })  # fmt: skip
         self._write(records)
+
+    def write_header(self, header: dict) -> None:
+        """Start the file with ``header`` (what its answers are about), flushed to disk; the file must be empty."""
+        if self.path.exists() and self.path.stat().st_size > 0:
+            raise ValueError(f"preference_journal {self.path} is not empty: its header comes first")
+        self._write([{"journal": header}])
 
     def append_undo(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
         """
@@ -193,6 +225,25 @@ def atomic_write_path(path: str | os.PathLike, suffix: str | None = None) -> Ite
         temporary.unlink(missing_ok=True)
 
 
+class AtomicSaves:
+    """
+    SB3's ``save`` and ``save_replay_buffer`` written to a temporary file renamed over ``path`` once complete, so that
+    a run killed mid-save leaves the previous checkpoint readable (mixed in before the algorithm's class).
+    """
+
+    def save(self, path, exclude=None, include=None) -> None:
+        if not isinstance(path, (str, os.PathLike)):
+            return super().save(path, exclude, include)  # type: ignore[misc]
+        with atomic_write_path(path, suffix="zip") as temporary:
+            super().save(temporary, exclude, include)  # type: ignore[misc]
+
+    def save_replay_buffer(self, path) -> None:
+        if not isinstance(path, (str, os.PathLike)):
+            return super().save_replay_buffer(path)  # type: ignore[misc]
+        with atomic_write_path(path, suffix="pkl") as temporary:
+            super().save_replay_buffer(temporary)  # type: ignore[misc]
+
+
 class JournalBook:
     """
     A run's side of its preference journal: the journal's history (read once, then kept in step with what this run
@@ -202,12 +253,23 @@ class JournalBook:
     :param path: the journal (None: no journal; every method then does nothing)
     :param entry_shape: (2, segment_length, obs_dim + action_dim), the shape of this run's pairs
     :param included: entries of the journal the run's preferences already include
+    :param header: what the run's answers are about (``PreferenceJournal``), written first in a new journal
+    :param prior_ids: the queries of the earlier runs' answers the run started from: never asked again
     """
 
-    def __init__(self, path: str | os.PathLike | None, entry_shape: tuple[int, ...], included: int = 0):
+    def __init__(
+        self,
+        path: str | os.PathLike | None,
+        entry_shape: tuple[int, ...],
+        included: int = 0,
+        header: dict | None = None,
+        prior_ids: Iterable[str] = (),
+    ):
         self.path = None if path is None else os.fspath(path)
         self.entry_shape = tuple(entry_shape)
         self.included = included
+        self.header = header
+        self.prior_ids = set(prior_ids)
         self._history: list[JournalEntry] | None = None
 
     def __getstate__(self) -> dict:
@@ -233,6 +295,10 @@ class JournalBook:
             self._history = entries
         return self._history
 
+    def asked_ids(self) -> set[str]:
+        """The queries never to ask again: every one the journal holds, and the earlier runs' answers given as priors."""
+        return {entry.id for entry in self.history()} | self.prior_ids
+
     def new_answers(self, session: int) -> list[JournalEntry]:
         """The journal's answers of feedback session ``session`` that the run does not include yet."""
         answers = []
@@ -246,7 +312,10 @@ class JournalBook:
         """Append answers to the journal, flushed to disk before returning (``FeedbackContext.record``)."""
         if self.path is None or not entries:
             return
-        PreferenceJournal(self.path).append(entries)
+        journal = PreferenceJournal(self.path)
+        if self.header is not None and (not journal.path.exists() or journal.path.stat().st_size == 0):
+            journal.write_header(self.header)
+        journal.append(entries)
         self.history().extend(entries)
 
     def retract(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
@@ -262,3 +331,84 @@ class JournalBook:
             raise ValueError(f"no answer of feedback session {session} to take back (query {entry_id}, annotator {annotator})")
         PreferenceJournal(self.path).append_undo(session, entry_id, annotator)
         del history[undone]
+
+
+#: what a journal's header says about its pairs, and the setting each must match
+HEADER_FIELDS = {
+    "env_id": "env id",
+    "observation_shape": "observation shape",
+    "action_shape": "action shape",
+    "segment_length": "segment_length",
+}
+
+
+@dataclass
+class PriorPreferences:
+    """
+    The answers of earlier runs' journals, for a run to start from: their pairs' inputs, labels μ (skips left out,
+    several annotators' answers to one query merged) and query ids, and where they came from.
+    """
+
+    inputs: np.ndarray
+    labels: np.ndarray
+    ids: list[str] = field(default_factory=list)
+    #: one dict per journal: its path, SHA-1 and number of labels
+    sources: list[dict] = field(default_factory=list)
+
+
+def journal_header(env_id: str | None, observation_shape: Any, action_shape: Any, segment_length: int) -> dict:
+    """A run's journal header (``PreferenceJournal``): what its pairs are about."""
+    return {
+        "env_id": env_id,
+        "observation_shape": list(observation_shape),
+        "action_shape": list(action_shape),
+        "segment_length": segment_length,
+    }
+
+
+def read_prior_preferences(paths: Sequence[str | os.PathLike], header: dict, entry_shape: tuple[int, ...]) -> PriorPreferences:
+    """
+    Read earlier runs' journals whole, as each run read its own (skips and undos applied), and refuse any that is not
+    about this run's pairs: a missing file, a last line cut in the middle of a write, a header whose env id,
+    observation or action shape or segment length differs from ``header``'s, or pairs of another shape than
+    ``entry_shape`` (a journal without a header is checked on its pairs' shape only).
+
+    :param paths: the journals, e.g. ``["runs/a/preferences.jsonl"]``
+    :param header: this run's journal header (``PreferenceJournal``)
+    :param entry_shape: (2, segment_length, obs_dim + action_dim)
+    """
+    if isinstance(paths, (str, os.PathLike)) or not all(isinstance(path, (str, os.PathLike)) for path in paths):
+        raise ValueError(f"prior_preferences must be a list of journal paths, got {paths!r}")
+    inputs, labels, ids, sources = [], [], [], []
+    for path in paths:
+        journal = PreferenceJournal(path)
+        if not journal.path.is_file():
+            raise ValueError(f"prior_preferences: {os.fspath(path)} is not a file")
+        theirs = journal.header() or {}
+        different = [
+            f"{name} {theirs[key]!r} (this run: {header[key]!r})"
+            for key, name in HEADER_FIELDS.items()
+            if theirs.get(key) is not None and header.get(key) is not None and _plain(theirs[key]) != _plain(header[key])
+        ]
+        if different:
+            raise ValueError(f"prior_preferences: {os.fspath(path)} is about other pairs: its " + ", its ".join(different))
+        entries = merge_answers(journal.read(strict=True))
+        for entry in entries:
+            if entry.inputs.shape != tuple(entry_shape):
+                raise ValueError(
+                    f"prior_preferences: {os.fspath(path)} holds pairs of shape {entry.inputs.shape}, this run's are "
+                    f"{tuple(entry_shape)} (2, segment_length, obs_dim + action_dim)"
+                )
+        answered = [entry for entry in entries if not np.isnan(entry.label)]
+        inputs += [entry.inputs for entry in answered]
+        labels += [entry.label for entry in answered]
+        ids += [entry.id for entry in entries]
+        digest = hashlib.sha1(journal.path.read_bytes()).hexdigest()
+        sources.append({"path": os.fspath(path), "sha1": digest, "labels": len(answered)})
+    stacked = np.stack(inputs).astype(np.float32) if inputs else np.zeros((0, *entry_shape), dtype=np.float32)
+    return PriorPreferences(stacked, np.array(labels, dtype=np.float32), ids, sources)
+
+
+def _plain(value: object) -> object:
+    """A header value as JSON reads it back (tuples become lists)."""
+    return json.loads(json.dumps(value))

@@ -114,6 +114,8 @@ class RewardLearner:
         )
         #: REED's consistency heads on the members' encoder (None: off)
         self.consistency = None if consistency is None else ConsistencyModel(self.ensemble, obs_dim, consistency)
+        #: one dict per reward update (``record``): session, step, labels, accuracy, corr(r̂, r); saved with the model
+        self.history: list[dict[str, float]] = []
 
     @classmethod
     def settings(cls) -> dict[str, Any]:
@@ -148,19 +150,32 @@ class RewardLearner:
             )
 
     def learn(
-        self, preferences: PreferenceDataset, buffer: PreferenceReplayBuffer, queries: QuerySampler, rng: np.random.Generator
+        self,
+        preferences: PreferenceDataset,
+        buffer: PreferenceReplayBuffer | None,
+        queries: QuerySampler | None,
+        rng: np.random.Generator,
     ) -> RewardLearningReport:
         """
         Train r̂ on every preference so far (Eqs. 1–2); with ``dynamics_consistency`` its encoder first learns from the
         transitions stored in ``buffer`` (REED), with ``pseudo_labels`` it also learns from unlabelled pairs drawn from
-        ``buffer`` as ``queries`` draws queries (SURF).
+        ``buffer`` as ``queries`` draws queries (SURF). Without a buffer (r̂ fitted from journals alone) neither can be on.
         """
+        parts = {"dynamics_consistency": self.consistency, "pseudo_labels": self.pseudo_labels}
+        if (buffer is None or queries is None) and any(part is not None for part in parts.values()):
+            on = [name for name, part in parts.items() if part is not None]
+            raise ValueError(
+                f"reward_kwargs: {on} learn from the agent's stored transitions, which r̂ fitted from preferences alone "
+                "does not have: turn them off"
+            )
         consistency_loss = None
         if self.consistency is not None:
+            assert buffer is not None
             transitions = stored_transitions(buffer, rng, self.consistency.settings.max_transitions)
             consistency_loss = self.consistency.train_epochs(*transitions, rng)
         unlabeled = None
         if self.pseudo_labels is not None:
+            assert buffer is not None and queries is not None
             n = min(self.pseudo_labels.unlabeled_per_label * len(preferences), self.pseudo_labels.max_unlabeled)
             unlabeled = queries.unlabeled_pairs(buffer, n, rng)
         loss, accuracy, epochs = self.ensemble.train_epochs(
@@ -178,6 +193,11 @@ class RewardLearner:
         return RewardLearningReport(
             loss, accuracy, epochs, consistency_loss, *((selection.trusted, selection.flipped) if selection else (None, None))
         )
+
+    def record(self, session: int, step: int, labels: int, report: RewardLearningReport, correlation: float) -> list[dict]:
+        """Add a reward update to ``history`` (what the reward report and a teacher's page show); return the history."""
+        self.history.append(dict(session=session, step=step, labels=labels, accuracy=report.accuracy, correlation=correlation))
+        return self.history
 
     def predict(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """r̂(s, a), the members' mean, NumPy in and out."""
@@ -244,7 +264,9 @@ class ReplayRewards:
         vec_normalize: VecNormalize | None = None,
     ) -> None:
         """Where training stands: the env step (RUNE's β_t), the phase, and QPA's rows (None: uniform minibatches)."""
-        self.step, self.pretraining, self.learned, self.vec_normalize = step, pretraining, learned, vec_normalize
+        # preferences of earlier runs (PEBBLE's prior_preferences) wait for the first session: r̂ has not learned yet
+        self.step, self.pretraining, self.learned = step, pretraining, learned and not pretraining
+        self.vec_normalize = vec_normalize
         self.bonus_active = self.learner.exploration_bonus is not None and not pretraining and learned
         self.recent_rows, self.recent_share = recent_rows, recent_share if recent_rows is not None else 0.0
 

@@ -68,7 +68,10 @@ class InteractiveTeacher(ABC):
     - ``ask(pairs, context)``, at each feedback session: one μ per pair (0, 1, 0.5, or NaN for a skip), every
       answer journaled by ``context.record`` as it is given (a crash mid-session loses none);
     - ``show_progress(asked, budget)``, when attached and after every feedback session: the run's queries asked so
-      far and its budget, for a UI to show (optional).
+      far and its budget, for a UI to show (optional);
+    - ``show_reward_history(history)``, after every reward update: one dict per update so far (``session``, ``step``,
+      ``labels``, ``accuracy`` and ``correlation``, corr(r̂, r) on stored transitions), for a UI to show whether the
+      labels teach r̂ anything (optional).
     """
 
     @abstractmethod
@@ -79,6 +82,9 @@ class InteractiveTeacher(ABC):
 
     def show_progress(self, asked: int, budget: int) -> None:  # noqa: B027 (optional: nothing to show by default)
         """The run's queries asked so far and its budget (``max_feedback``)."""
+
+    def show_reward_history(self, history: list[dict]) -> None:  # noqa: B027 (optional: nothing to show by default)
+        """Every reward update so far (``RewardLearner.history``): its session, step, labels, accuracy, corr(r̂, r)."""
 
 
 #: B-Pref's simulated teachers (README of rll-research/BPref); ``beta=None`` is perfectly rational

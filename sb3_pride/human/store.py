@@ -5,18 +5,15 @@ answers and undos (journaled through the session's ``FeedbackContext`` the momen
 """
 
 import math
-import os
-import random
-import tempfile
 import threading
 import time
-from collections import deque
-from collections.abc import Callable
 from typing import Any
 
 from sb3_pride.common.journal import JournalEntry
+from sb3_pride.human.pacing import JournalPace
 from sb3_pride.human.questions import ALLOWED_LABELS, Answer, KnownPair, Question, Refused, Session
 from sb3_pride.human.quality import HIDDEN_DURING_SESSION, Quality
+from sb3_pride.human.reward_history import plain_history
 from sb3_pride.human.settings import ANONYMOUS, HAND_OVER_AFTER
 
 #: questions handed to an annotator at a time: the one shown and the next, whose clips the page preloads
@@ -24,8 +21,6 @@ QUEUE_LENGTH = 2
 #: seconds after which the questions handed to an annotator whose page stopped asking for the state (it asks every
 #: second; a browser tab hidden for minutes, once a minute) are handed to others
 RELEASE_AFTER = 90.0
-#: how many of the latest journal writes a known-answer question's answer draws its wait from
-PACE_SAMPLES = 32
 
 
 class AnswerStore:
@@ -60,16 +55,28 @@ class AnswerStore:
         self.session: Session | None = None
         #: the run's queries asked so far and its budget, as the page shows them
         self.budget: dict[str, int | None] = {"max": None, "asked": None}
+        #: every reward update so far (``show_reward_history``), plain values (a NaN as None), as the page shows it
+        self.reward_history: list[dict[str, Any]] = []
         #: annotator -> when (``time.monotonic()``) their page last asked for the state or answered
         self.last_seen: dict[str, float] = {}
-        self._durations: deque[float] = deque(maxlen=PACE_SAMPLES)  # the latest journal writes, in seconds
-        self._pace_rng = random.Random()
+        #: times the journal writes; a known-answer question's answer or undo waits as long as one took
+        self.pace = JournalPace()
 
     # the session ------------------------------------------------------------------------------------------------
     def show_progress(self, asked: int, budget: int) -> None:
         """The run's queries asked so far and its budget, shown on the page between sessions."""
         with self.condition:
             self.budget = {"max": budget, "asked": asked}
+
+    def show_reward_history(self, history: list[dict]) -> None:
+        """
+        Every reward update so far, shown on the page: ``WebTeacher.show_reward_history()``. A copy of plain values is
+        kept (``plain_history``: a NaN becomes None), nothing of ``history`` itself.
+
+        :param history: one dict per reward update, oldest first
+        """
+        with self.condition:
+            self.reward_history = plain_history(history)
 
     def begin(self, session: Session) -> None:
         """Open ``session``: its queries count as asked from now on. Raises ``RuntimeError`` while another is open."""
@@ -199,6 +206,7 @@ class AnswerStore:
                 "answers_per_query": self.answers_per_query,
                 "team": team,
                 "budget": dict(self.budget),
+                "reward_history": [dict(entry) for entry in self.reward_history],
                 "instructions": instructions,
             }
 
@@ -318,9 +326,9 @@ class AnswerStore:
             if question.known is None:
                 # journaled (flushed to disk) first, then kept, so that a failed write changes nothing
                 entry = JournalEntry(session.number, question.inputs, value, self._journal_name(name), time.time())
-                self._journal(session.context.record, [entry])
+                self.pace.write(session.context.record, [entry])
             else:
-                self._pace()
+                self.pace.wait()
             handed.pop(0)
             question.holders.discard(name)
             question.answers[name] = value
@@ -347,11 +355,11 @@ class AnswerStore:
                 raise Refused("conflict", "no answer of yours in this feedback session to undo")
             question, given = session.history[name][-1]
             if question.known is None:
-                self._journal(
+                self.pace.write(
                     session.context.retract, session.number, entry_id=question.pair, annotator=self._journal_name(name)
                 )
             else:
-                self._pace()
+                self.pace.wait()
             session.history[name].pop()
             del question.answers[name]
             if question.known is None:
@@ -367,22 +375,3 @@ class AnswerStore:
 
     def _journal_name(self, name: str) -> str | None:
         return name if self.annotators else None
-
-    def _journal(self, write: Callable[..., None], *args: Any, **kwargs: Any) -> None:
-        """A journal write (``record`` or ``retract``), timed for ``_pace``."""
-        start = time.perf_counter()
-        write(*args, **kwargs)
-        self._durations.append(time.perf_counter() - start)
-
-    def _pace(self) -> None:
-        """
-        What a known-answer question's answer or undo does in place of a journal write, so that it takes as long: wait
-        as long as one of the latest journal writes took; before the first, make a durable write of its own.
-        """
-        if self._durations:
-            time.sleep(self._pace_rng.choice(self._durations))
-            return
-        with tempfile.TemporaryFile() as file:
-            file.write(b'{"session": 0, "label": 0.5}\n')
-            file.flush()
-            os.fsync(file.fileno())

@@ -75,7 +75,8 @@ class WebTeacher(InteractiveTeacher):
     preferred (μ = 1), ArrowDown = equally good (μ = 0.5), s = skip, Backspace = undo your last answer of this
     session. Everything is served by the training process (no internet needed). Use it as
     ``PEBBLE(..., teacher=WebTeacher(port=8000))`` or ``teacher="web"``; needs the ``[human]`` extra and an env that can
-    be re-rendered (every ``sb3_pride/...`` env).
+    be re-rendered (every ``sb3_pride/...`` env). Below the pair, a curve of corr(r̂, r) after each feedback session
+    (``show_reward_history``) tells the team whether its labels teach r̂ the task.
 
     Several annotators: ``WebTeacher(annotators=["ana", "ben"])`` gives each a secret token; ``links`` (printed when
     the server starts) maps each name to the URL that carries it, and every request of the page must carry one. Each
@@ -263,6 +264,16 @@ class WebTeacher(InteractiveTeacher):
         """The run's queries asked so far and its budget, shown on the page between sessions."""
         self.store.show_progress(asked, budget)
 
+    def show_reward_history(self, history: list[dict]) -> None:
+        """
+        Every reward update so far, shown on the page as a curve of corr(r̂, r) per feedback session with its latest
+        value: whether the team's labels teach r̂ the task. A copy of plain values is kept (a NaN becomes None).
+
+        :param history: one dict per reward update, oldest first: ``session``, ``step``, ``labels``, ``accuracy`` and
+            ``correlation`` (Pearson's, of r̂ with the env's reward; NaN where it is undefined)
+        """
+        self.store.show_reward_history(history)
+
     def ask(self, pairs: SegmentPairs, context: FeedbackContext) -> np.ndarray:
         """
         Show every pair on the page and wait for its answers: μ per pair (the mean of its answers that are not skips),
@@ -308,7 +319,8 @@ class WebTeacher(InteractiveTeacher):
     def state(self, annotator: str | None = None) -> dict[str, Any]:
         """
         What ``annotator``'s page shows (handing them questions): the question shown and the next, the session's and
-        the budget's progress, their answers and the team's, the instructions.
+        the budget's progress, their answers and the team's, the instructions, and the reward model's history
+        (``reward_history``: ``show_reward_history``'s, a NaN as None).
 
         Nothing in it moves differently on a known-answer question: ``answered`` counts the session's answers (known
         ones and skips included) out of ``total`` (with ``known_answer_rate > 0`` an estimate, ``estimate`` true, never

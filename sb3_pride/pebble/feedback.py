@@ -3,6 +3,7 @@ A feedback session's way from queries to answers (Algorithm 1, lines 6–15): pu
 synchronously or in a thread of its own, take the answers in once they are all given, check them, journal them.
 """
 
+import os
 import threading
 import warnings
 import time
@@ -15,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 from stable_baselines3.common.logger import Logger
 
-from sb3_pride.common.journal import JournalBook, JournalEntry, merge_answers
+from sb3_pride.common.journal import JournalBook, JournalEntry, merge_answers, read_prior_preferences
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.utils import caller_stacklevel
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
@@ -24,6 +25,7 @@ if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
 
     from sb3_pride.common.buffers import PreferenceReplayBuffer
+    from sb3_pride.common.reward_model import PreferenceDataset
 
 
 @dataclass
@@ -214,6 +216,29 @@ class FeedbackLoop:
         elif buffer is not None:  # a resumed buffer may say otherwise
             buffer.record_render_states = False
 
+    def open_journal(
+        self,
+        path: str | None,
+        header: dict,
+        included: int,
+        preferences: "PreferenceDataset",
+        prior_paths: "Sequence[str | os.PathLike] | None",
+    ) -> None:
+        """
+        The run's journal (``JournalBook``): what its pairs are about (``header``), how many of its entries the
+        run includes, and, for a new run (``preferences`` empty) given ``prior_paths``, the earlier runs' answers it
+        starts from, added to ``preferences`` and named in the header (``read_prior_preferences``); a loaded run keeps
+        the header and priors it was saved with. A journal that does not fit the run fails now, not at a session.
+        """
+        header, prior_ids = self.journal.header or header, self.journal.prior_ids
+        entry_shape = (2, *preferences.inputs.shape[2:])
+        if prior_paths and len(preferences) == 0 and not prior_ids:
+            priors = read_prior_preferences(prior_paths, header, entry_shape)
+            preferences.add(priors.inputs, priors.labels)
+            header, prior_ids = {**header, "prior_preferences": priors.sources}, set(priors.ids)
+        self.journal = JournalBook(path, entry_shape, included, header, prior_ids)
+        self.journal.history()
+
     @property
     def ready(self) -> bool:
         """Whether the teacher has answered every query of the open session (``take()`` won't wait)."""
@@ -245,7 +270,7 @@ class FeedbackLoop:
         journal_length = len(self.journal.history())  # before the teacher journals this session's new answers
         journaled = merge_answers(raw)[:n_queries]
         kept = {entry.id for entry in journaled}
-        candidates = choose(n_queries - len(journaled), {entry.id for entry in self.journal.history()})
+        candidates = choose(n_queries - len(journaled), self.journal.asked_ids())
         if candidates is None:
             return False
         answers: Future[np.ndarray] = Future()

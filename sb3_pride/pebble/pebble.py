@@ -1,6 +1,6 @@
 import os
 import time
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
 
 import numpy as np
@@ -16,8 +16,9 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.common.entropy import StateEntropyReward
-from sb3_pride.common.env_checks import check_env
-from sb3_pride.common.journal import JournalBook, atomic_write_path
+from sb3_pride.common.env_checks import check_env, env_id
+from sb3_pride.common.journal import AtomicSaves, JournalBook, journal_header
+from sb3_pride.common.learned_reward import LearnedReward
 from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import OPTION_SETTINGS, ReplayRewards, RewardLearner
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
@@ -36,7 +37,7 @@ from sb3_pride.pebble.settings import (
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 
 
-class PEBBLE(SAC):
+class PEBBLE(AtomicSaves, SAC):
     """
     PEBBLE: unsupervised Pre-training and preference-Based learning via relaBeLing Experience
     (Lee, Smith & Abbeel, ICML 2021), the preference-based SAC that PRIDE builds on
@@ -49,9 +50,8 @@ class PEBBLE(SAC):
     is reset and trained on r̂. The parts: a ``FeedbackLoop`` (the teacher's side of a session), a ``QuerySampler``,
     a ``RewardLearner`` and the ``ReplayRewards`` the replay buffer asks.
 
-    Parameters not listed here are SAC's, with the same meaning and defaults except ``learning_starts``
-    (PEBBLE: 1000) and ``n_steps``, which must stay 1 (n-step sums of rewards that relabeling rewrites).
-    Saves write a temporary file and rename it, so a run killed mid-save leaves the previous checkpoint readable.
+    Parameters not listed here are SAC's, with the same meaning and defaults except ``learning_starts`` (PEBBLE: 1000)
+    and ``n_steps``, which must stay 1 (n-step sums of rewards that relabeling rewrites). Saves are ``AtomicSaves``.
 
     :param teacher: who labels: a ``Teacher`` (a callable), an ``InteractiveTeacher`` (e.g. ``WebTeacher``) or a name
         in ``sb3_pride.common.teachers.TEACHERS``: a B-Pref scripted teacher ("oracle", "mistake", ...) or "web"
@@ -68,6 +68,8 @@ class PEBBLE(SAC):
         a run made or loaded with it takes back the answers it lacks (a crash) instead of asking again. None: none
     :param asynchronous_feedback: True: the teacher answers in a thread of its own while training goes on with the
         reward model it has; the answers are taken in at the first step after the last is given. False: training waits
+    :param prior_preferences: earlier runs' preference journals whose answers r̂ learns from, with the run's own, from
+        the first feedback session on: not counted in ``max_feedback``, never asked again (``read_prior_preferences``)
     :param reward_kwargs: ``RewardLearner`` settings: the ensemble (``ensemble_size``, ``net_arch``, ``learning_rate``,
         ``batch_size``, ``epochs``, ``early_stop``) and the options (``temporal_crop``, ``robust_labels``, ...)
     :param query_kwargs: ``QuerySampler`` settings: ``candidates_multiplier`` (PEBBLE: 10), ``max_query_episodes``
@@ -129,6 +131,7 @@ class PEBBLE(SAC):
         unsupervised_steps: int = 9000,
         preference_journal: str | os.PathLike | None = None,
         asynchronous_feedback: bool = False,
+        prior_preferences: Sequence[str | os.PathLike] | None = None,
         reward_kwargs: dict[str, Any] | None = None,
         query_kwargs: dict[str, Any] | None = None,
         pretraining_kwargs: dict[str, Any] | None = None,
@@ -164,6 +167,7 @@ class PEBBLE(SAC):
         self.segment_length, self.query_selection = segment_length, query_selection
         self.unsupervised_steps, self.asynchronous_feedback = unsupervised_steps, bool(asynchronous_feedback)
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
+        self.prior_preferences = prior_preferences
         self.reward_kwargs, self.query_kwargs = settings["reward_kwargs"], settings["query_kwargs"]
         self.pretraining_kwargs = settings["pretraining_kwargs"]
         # learning state, saved with the model
@@ -183,20 +187,21 @@ class PEBBLE(SAC):
         migrate_saved_model(self.__dict__)  # a model saved by 0.1.0 or 0.2.0
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
-        previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's selection goes on (0.2.0 saved it apart)
+        previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's selection and the history go on
         carried = self.__dict__.pop("migrated_label_selection", getattr(previous, "label_selection", None))
         self.reward_learner = RewardLearner(obs_dim, action_dim, self.segment_length, device=self.device, **self.reward_kwargs)
+        self.reward_learner.history = list(getattr(previous, "history", []))
         if carried is not None and self.reward_learner.label_selection is not None:
             self.reward_learner.label_selection = carried
-        # r̂ and REED's heads are saved as state dicts under names of their own (the learner's data is saved apart)
+        # r̂ and REED's heads: state dicts under names of their own (the learner's data is saved apart)
         self.reward_model, self.consistency_model = self.reward_learner.ensemble, self.reward_learner.consistency
         self.query_sampler = QuerySampler.from_settings(self.segment_length, self.query_selection, self.query_kwargs)
-        if getattr(self, "preferences", None) is None:  # a loaded model has its own
+        if getattr(self, "preferences", None) is None:  # a loaded model has its own, its priors included
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
+        header = journal_header(env_id(self.env), self.observation_space.shape, self.action_space.shape, self.segment_length)
         included = self.__dict__.pop("migrated_journal_entries", self.feedback.journal.included)
-        self.feedback.journal = JournalBook(self.preference_journal, (2, self.segment_length, obs_dim + action_dim), included)
+        self.feedback.open_journal(self.preference_journal, header, included, self.preferences, self.prior_preferences)
         self.feedback.named_teacher = self.__dict__.pop("migrated_named_teacher", self.feedback.named_teacher)
-        self.feedback.journal.history()  # a journal that does not fit this model fails now, not at the next session
         self.replay_rewards = ReplayRewards(self.reward_learner, self.state_entropy)
         self.replay_rewards.update(self.num_timesteps, self.in_pretraining, learned=len(self.preferences) > 0)
         self.real_buffer.reward_source = self.replay_rewards
@@ -367,6 +372,11 @@ class PEBBLE(SAC):
             if value is not None:
                 self.logger.record(f"reward_model/{key}", value)
         self.logger.record("reward_model/true_reward_corr", correlation)
+        history = self.reward_learner.record(
+            self.feedback_sessions, self.num_timesteps, len(self.preferences), report, correlation
+        )
+        if isinstance(self.feedback.teacher, InteractiveTeacher):
+            self.feedback.teacher.show_reward_history(history)
         if self.verbose > 0:
             print(
                 f"feedback session {self.feedback_sessions} at step {self.num_timesteps}: "
@@ -408,19 +418,9 @@ class PEBBLE(SAC):
         self.critic.optimizer.state.clear()
 
     # saving and loading ------------------------------------------------------------------------------------------------
-    def save(self, path, exclude: Iterable[str] | None = None, include: Iterable[str] | None = None) -> None:
-        """SB3's ``save``, written to a temporary file renamed over ``path`` once complete."""
-        if not isinstance(path, (str, os.PathLike)):
-            return super().save(path, exclude, include)
-        with atomic_write_path(path, suffix="zip") as temporary:
-            super().save(temporary, exclude, include)
-
-    def save_replay_buffer(self, path) -> None:
-        """SB3's ``save_replay_buffer``, written to a temporary file renamed over ``path`` once complete."""
-        if not isinstance(path, (str, os.PathLike)):
-            return super().save_replay_buffer(path)
-        with atomic_write_path(path, suffix="pkl") as temporary:
-            super().save_replay_buffer(temporary)
+    def save_reward_model(self, path: str | os.PathLike) -> None:
+        """r̂ on its own (``LearnedReward``): its weights with the spaces it reads, for ``LearnedReward.load``."""
+        LearnedReward.of_model(self).save(path)
 
     def load_replay_buffer(self, path, truncate_last_traj: bool = True) -> None:
         super().load_replay_buffer(path, truncate_last_traj)

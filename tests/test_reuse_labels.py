@@ -1,0 +1,111 @@
+"""Labels from earlier runs: a run starts from the answers of earlier journals, read and checked as the run reads its own."""
+
+import json
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_pride import PEBBLE
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal, read_prior_preferences
+
+
+@pytest.fixture(scope="module")
+def earlier_journal(tmp_path_factory):
+    """The journal of a finished tiny PEBBLE run on Pendulum (seed 0, 60 answers)."""
+    from conftest import TINY
+
+    path = tmp_path_factory.mktemp("earlier") / "preferences.jsonl"
+    PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal=path, **TINY).learn(1000)
+    return path
+
+
+def test_a_journal_starts_with_what_its_pairs_are_about(earlier_journal):
+    header = PreferenceJournal(earlier_journal).header()
+    assert header == {"env_id": "Pendulum-v1", "observation_shape": [3], "action_shape": [1], "segment_length": 10}
+    assert len(PreferenceJournal(earlier_journal).read()) == 60
+
+
+def test_priors_train_r_hat_from_the_first_session_count_nowhere_and_are_never_asked_again(
+    earlier_journal, tiny_kwargs, tmp_path
+):
+    own = tmp_path / "own.jsonl"
+    model = PEBBLE(
+        "MlpPolicy", "Pendulum-v1", seed=0, preference_journal=own, prior_preferences=[earlier_journal], **tiny_kwargs
+    )
+    assert len(model.preferences) == 60 and model.feedback_asked == 0
+    model.learn(1000)
+    history = model.reward_learner.history
+    # r̂ learned from the 60 priors at the first session, and from the run's own labels beside them from then on
+    assert history[0]["session"] == 1 and history[0]["labels"] >= 60
+    assert history[-1]["labels"] == 60 + model.feedback_labeled > 60
+    assert model.feedback_labeled == len(model.preferences) - 60 and model.feedback_asked <= tiny_kwargs["max_feedback"]
+    # the same seed draws the earlier run's first queries again: none of them is asked
+    earlier_ids = {entry.id for entry in PreferenceJournal(earlier_journal).read()}
+    own_ids = {entry.id for entry in PreferenceJournal(own).read()}
+    assert own_ids and not own_ids & earlier_ids
+    header = PreferenceJournal(own).header()
+    assert header is not None and header["prior_preferences"][0]["path"] == str(earlier_journal)
+    assert header["prior_preferences"][0]["labels"] == 60 and len(header["prior_preferences"][0]["sha1"]) == 40
+
+
+def test_without_priors_the_same_seed_asks_the_earlier_runs_queries(earlier_journal, tiny_kwargs, tmp_path):
+    """The deliberately bad case of the test above: with no priors, the first session repeats the earlier run's."""
+    own = tmp_path / "own.jsonl"
+    PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal=own, **dict(tiny_kwargs, max_feedback=20)).learn(400)
+    earlier_ids = {entry.id for entry in PreferenceJournal(earlier_journal).read()}
+    assert {entry.id for entry in PreferenceJournal(own).read()} & earlier_ids
+
+
+def test_a_saved_run_keeps_its_priors_and_their_origin(earlier_journal, tiny_kwargs, tmp_path):
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=1, prior_preferences=[earlier_journal], **tiny_kwargs)
+    model.save(tmp_path / "model.zip")
+    loaded = PEBBLE.load(tmp_path / "model.zip", env=gym.make("Pendulum-v1"))
+    assert len(loaded.preferences) == 60
+    assert loaded.feedback.journal.asked_ids() >= {entry.id for entry in PreferenceJournal(earlier_journal).read()}
+
+
+def test_skips_undos_and_several_annotators_are_read_as_the_run_read_them(tmp_path):
+    journal = PreferenceJournal(tmp_path / "team.jsonl")
+    rng = np.random.default_rng(0)
+    pairs = [rng.normal(size=(2, 5, 4)).astype(np.float32) for _ in range(4)]
+    journal.append([JournalEntry(1, pairs[0], 1.0, "ann"), JournalEntry(1, pairs[0], 0.0, "bob")])  # mean 0.5
+    journal.append([JournalEntry(1, pairs[1], float("nan"))])  # a skip: asked, not learned from
+    journal.append([JournalEntry(1, pairs[2], 1.0)])
+    journal.append_undo(1)  # takes pairs[2]'s answer back
+    journal.append([JournalEntry(2, pairs[3], 0.0)])
+    header = {"env_id": None, "observation_shape": [3], "action_shape": [1], "segment_length": 5}
+    priors = read_prior_preferences([journal.path], header, (2, 5, 4))
+    assert priors.labels.tolist() == [0.5, 0.0]
+    np.testing.assert_array_equal(priors.inputs[1], pairs[3])
+    assert len(priors.ids) == 3  # the skip is never asked again either
+    assert priors.sources[0]["labels"] == 2
+
+
+def test_a_journal_of_another_env_or_cut_short_is_refused_and_nothing_is_recorded(earlier_journal, tiny_kwargs, tmp_path):
+    own = tmp_path / "own.jsonl"
+    with pytest.raises(ValueError, match=r"preferences.jsonl is about other pairs: its env id 'Pendulum-v1'.*observation"):
+        PEBBLE("MlpPolicy", "MountainCarContinuous-v0", preference_journal=own, prior_preferences=[earlier_journal], **tiny_kwargs)
+    torn = tmp_path / "torn.jsonl"
+    torn.write_text(earlier_journal.read_text()[:-40])
+    with pytest.raises(ValueError, match=r"torn.jsonl: line 61 is not JSON \(a last line cut"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=[torn], **tiny_kwargs)
+    other_segments = dict(tiny_kwargs, segment_length=20)
+    with pytest.raises(ValueError, match=r"its segment_length 10 \(this run: 20\)"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=[earlier_journal], **other_segments)
+    with pytest.raises(ValueError, match="missing.jsonl is not a file"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=[tmp_path / "missing.jsonl"], **tiny_kwargs)
+    with pytest.raises(ValueError, match="prior_preferences must be a list of journal paths"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=str(earlier_journal), **tiny_kwargs)
+    assert not own.exists()
+
+
+def test_a_journal_without_a_header_is_checked_on_its_pairs(earlier_journal, tiny_kwargs, tmp_path):
+    bare = tmp_path / "bare.jsonl"
+    lines = earlier_journal.read_text().splitlines(keepends=True)
+    assert "journal" in json.loads(lines[0])
+    bare.write_text("".join(lines[1:]))
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", prior_preferences=[bare], **tiny_kwargs)
+    assert len(model.preferences) == 60
+    with pytest.raises(ValueError, match=r"holds pairs of shape \(2, 10, 4\), this run's are \(2, 10, 3\)"):
+        PEBBLE("MlpPolicy", "MountainCarContinuous-v0", prior_preferences=[bare], **tiny_kwargs)
