@@ -97,8 +97,9 @@ def configuration(label: str, variants: dict[str, dict[str, Any]], where: str) -
     if label in variants:
         entry = variants[label]
         config = {"algo": entry["algo"], "tag": entry["tag"], "overrides": entry["overrides"], "variant": label}
-        if "seconds_per_answer" in entry:
-            config["seconds_per_answer"] = entry["seconds_per_answer"]
+        for key in ("seconds_per_answer", "learned_reward"):
+            if key in entry:
+                config[key] = entry[key]
         return config
     if label in run.ALGOS:
         return {"algo": label, "tag": "", "overrides": {}, "variant": None}
@@ -132,8 +133,10 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
                             eval_freq=grid.get("eval_freq", 5000), eval_episodes=grid.get("eval_episodes", 5),
                             timesteps=grid.get("timesteps", 0), tag=config["tag"], overrides=config["overrides"],
                             configuration=label, variant=config["variant"])  # fmt: skip
-                if "seconds_per_answer" in config:
-                    spec["seconds_per_answer"] = config["seconds_per_answer"]
+                for key in ("seconds_per_answer", "learned_reward"):
+                    if key in config:
+                        spec[key] = config[key]
+                spec["next_seed"] = seeds[(seeds.index(seed) + 1) % len(seeds)]
                 if run.run_name(spec) not in seen:
                     seen.add(run.run_name(spec))
                     specs.append(spec)

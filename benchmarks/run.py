@@ -101,8 +101,10 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
     """
     The named variants of a tier, ``hyperparams/<tier>/variants.yml`` (``hyperparams/variants.yml`` for ``paper``):
     ``{label: {"algo", "name", "description", "overrides", "tag"}}``, the name and tag defaulting to the label ({}
-    without the file), and ``seconds_per_answer`` where the variant's teacher answers at a person's pace
-    (``PacedTeacher``).
+    without the file), ``seconds_per_answer`` where the variant's teacher answers at a person's pace
+    (``PacedTeacher``), and ``learned_reward`` where the variant's agent learns from the r̂ a run saved
+    (``VecLearnedReward``). Strings of ``overrides`` and ``learned_reward`` may name ``{out}`` (the grid's run folder),
+    ``{task}``, ``{feedback}``, ``{seed}`` and ``{next_seed}`` (the next seed of the grid block's seeds, cyclically).
     """
     import yaml
 
@@ -113,7 +115,9 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
         return {}
     variants = yaml.safe_load(path.read_text()) or {}
     for label, entry in variants.items():
-        unknown = sorted(set(entry) - {"algo", "name", "description", "overrides", "tag", "seconds_per_answer"})
+        unknown = sorted(
+            set(entry) - {"algo", "name", "description", "overrides", "tag", "seconds_per_answer", "learned_reward"}
+        )
         if unknown or entry.get("algo") not in ALGOS:
             problem = f"unknown keys {unknown}" if unknown else f"algo must be one of {ALGOS}, got {entry.get('algo')!r}"
             raise SystemExit(f"{path}: variant {label!r}: {problem}")
@@ -330,6 +334,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
 
     started = utc_now()
     th.set_num_threads(1)
+    spec = run_templates(spec, folder.parent)
     n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
     if spec["algo"] != "sac":
         kwargs["max_feedback"] = spec["feedback"]
@@ -339,8 +344,14 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     n_timesteps = spec["timesteps"] or n_timesteps
     algo = algorithm_class(spec["algo"])
     env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
+    if spec.get("learned_reward"):  # the agent learns from a saved r̂; the evaluations still read the true return
+        from sb3_pride.reward import VecLearnedReward
+
+        env = VecLearnedReward(env, spec["learned_reward"])
     eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
     model_kwargs = dict(kwargs)
+    if spec["algo"] != "sac":  # the run's answers, for a later run to start from (prior_preferences)
+        model_kwargs.setdefault("preference_journal", str(folder / "preferences.jsonl"))
     if spec.get("seconds_per_answer"):  # the teacher answers at a person's pace
         from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
 
@@ -368,6 +379,8 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     start = time.time()
     model.learn(n_timesteps, callback=evaluation)
     seconds = time.time() - start
+    if hasattr(model, "save_reward_model"):
+        model.save_reward_model(folder / "reward.pt")  # r̂ on its own, for an agent to learn from (learned_reward)
     data = np.load(folder / "evaluations.npz")
     returns = data["results"].mean(axis=1)
     successes = data["successes"].mean(axis=1) if "successes" in data and data["successes"].size else None
@@ -383,6 +396,26 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     (folder / "result.json").write_text(json.dumps(result, indent=2))
     settings["time"]["finished"] = utc_now()  # the run's end, beside its start
     (folder / "settings.json").write_text(json.dumps(settings, indent=2, default=str))
+
+
+def run_templates(spec: dict[str, Any], out: Path) -> dict[str, Any]:
+    """
+    ``spec`` with ``{out}``, ``{task}``, ``{feedback}``, ``{seed}`` and ``{next_seed}`` filled in the strings of its
+    overrides and ``learned_reward``.
+    """
+    fields = {"out": str(out), "task": spec["task"], "feedback": spec["feedback"], "seed": spec["seed"]}
+    fields["next_seed"] = spec.get("next_seed", spec["seed"])
+
+    def fill(value: Any) -> Any:
+        if isinstance(value, str):
+            return value.format(**fields)
+        if isinstance(value, list):
+            return [fill(item) for item in value]
+        if isinstance(value, dict):
+            return {key: fill(item) for key, item in value.items()}
+        return value
+
+    return {**spec, "overrides": fill(spec.get("overrides") or {}), "learned_reward": fill(spec.get("learned_reward"))}
 
 
 def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:

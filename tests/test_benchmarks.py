@@ -713,3 +713,27 @@ def test_each_row_reads_as_a_share_of_the_sac_ceiling(page, tmp_path):
     only_pebble = write_grid(tmp_path / "alone", "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-1}\n")
     alone = page.recount([only_pebble], tmp_path / "runs")["tasks"]["walker-walk"][0]
     assert alone["share_of_ceiling"] is None
+
+
+@pytest.mark.slow
+def test_a_run_keeps_its_journal_and_r_hat_for_runs_that_start_from_them(run, tmp_path):
+    """A PEBBLE run leaves preferences.jsonl and reward.pt; a run named by templates starts from the one, SAC the other."""
+    tiny = {"learning_starts": 50, "unsupervised_steps": 50, "feedback_interval": 50, "queries_per_session": 5,
+            "segment_length": 10, "batch_size": 32, "policy_kwargs": {"net_arch": [32, 32]},
+            "reward_kwargs": {"net_arch": [32, 32], "epochs": 2}}  # fmt: skip
+    base = dict(task="walker-walk", feedback=10, ratio=None, tier="cpu", eval_freq=200, eval_episodes=1, timesteps=200)
+    donor = dict(base, algo="pebble", seed=1, tag="", overrides=tiny)
+    run.worker(donor, tmp_path / run.run_name(donor))
+    assert (tmp_path / "pebble_walker-walk_s1_fb10" / "preferences.jsonl").exists()
+    prior = {"prior_preferences": ["{out}/pebble_{task}_s{next_seed}_fb{feedback}/preferences.jsonl"]}
+    reusing = dict(base, algo="pebble", seed=0, next_seed=1, tag="prior", overrides={**tiny, **prior})
+    run.worker(reusing, tmp_path / run.run_name(reusing))
+    settings = json.loads((tmp_path / "pebble_walker-walk_s0_fb10_prior" / "settings.json").read_text())
+    assert settings["kwargs"]["prior_preferences"] == [str(tmp_path / "pebble_walker-walk_s1_fb10" / "preferences.jsonl")]
+    journal = (tmp_path / "pebble_walker-walk_s0_fb10_prior" / "preferences.jsonl").read_text()
+    assert json.loads(journal.splitlines()[0])["journal"]["prior_preferences"][0]["labels"] == 10
+    learner = dict(base, algo="sac", seed=0, tag="on_reward", overrides={"policy_kwargs": {"net_arch": [32, 32]}},
+                   learned_reward="{out}/pebble_{task}_s1_fb{feedback}/reward.pt")  # fmt: skip
+    learner["feedback"] = 10
+    run.worker(learner, tmp_path / run.run_name(learner))
+    assert json.loads((tmp_path / run.run_name(learner) / "result.json").read_text())["final_return"] is not None

@@ -71,12 +71,12 @@ def test_the_reward_model_saved_apart_predicts_as_the_agents(trained):
 
 def test_a_file_that_is_not_a_reward_model_is_refused(tmp_path, trained):
     _, folder = trained
-    with pytest.raises(ValueError, match="missing.pt does not exist"):
+    with pytest.raises(ValueError, match=r"missing.pt does not exist"):
         LearnedReward.load(tmp_path / "missing.pt")
     (tmp_path / "other.pt").write_bytes(b"not a model")
-    with pytest.raises(ValueError, match="other.pt is not a reward model saved by sb3_pride"):
+    with pytest.raises(ValueError, match=r"other.pt is not a reward model saved by sb3_pride"):
         LearnedReward.load(tmp_path / "other.pt")
-    with pytest.raises(ValueError, match="preferences.jsonl is not a reward model"):
+    with pytest.raises(ValueError, match=r"preferences.jsonl is not a reward model"):
         LearnedReward.load(folder / "preferences.jsonl")
 
 
@@ -112,7 +112,7 @@ def test_the_vectorised_wrapper_with_several_envs_normalizes_and_trains_ppo_sac_
     normalized = VecLearnedReward(make_vec_env("Pendulum-v1", n_envs=2, seed=0), reward, normalize=True)
     normalized.reset()
     for _ in range(50):
-        _, scaled, _, _ = normalized.step(np.stack([normalized.action_space.sample() for _ in range(2)]))
+        normalized.step(np.stack([normalized.action_space.sample() for _ in range(2)]))
     assert normalized.normalizer is not None and normalized.normalizer.statistics.count > 50
     PPO("MlpPolicy", venv, n_steps=64, batch_size=64, n_epochs=1, seed=0).learn(192)
     SAC("MlpPolicy", venv, learning_starts=50, seed=0).learn(150)
@@ -123,7 +123,7 @@ def test_a_wrapper_on_an_env_of_other_spaces_is_refused(trained, tmp_path):
     _, folder = trained
     with pytest.raises(ValueError, match=r"has the observation space Box\(\[-1.2.*\(2,\).*the reward model reads Box.*\(3,\)"):
         LearnedRewardWrapper(gym.make("MountainCarContinuous-v0"), folder / "reward.pt")
-    with pytest.raises(ValueError, match="has the observation space"):
+    with pytest.raises(ValueError, match=r"has the observation space"):
         VecLearnedReward(make_vec_env("MountainCarContinuous-v0", n_envs=2), folder / "reward.pt")
     # a reward file of other spaces: the wrapper names the space
     other = PEBBLE("MlpPolicy", "MountainCarContinuous-v0", learning_starts=10, segment_length=10)
@@ -141,7 +141,7 @@ def test_fit_from_journals_ranks_held_out_pairs_and_a_flipped_teacher_reads_belo
     inputs, labels = np.stack([entry.inputs for entry in pairs]), np.array([entry.label for entry in pairs])
     # the deliberately bad case: the same r̂ judged against flipped labels
     assert preference_accuracy(reward, inputs, 1.0 - labels) <= 0.3
-    with pytest.raises(ValueError, match="dynamics_consistency.*learn from the agent's stored transitions"):
+    with pytest.raises(ValueError, match=r"dynamics_consistency.*learn from the agent's stored transitions"):
         fit_reward([folder / "preferences.jsonl"], reward_kwargs=dict(dynamics_consistency=True))
     with pytest.raises(ValueError, match=r"other.jsonl is about other pairs: its env id 'Pendulum-v1' \(this run: 'Mountain"):
         (tmp_path / "other.jsonl").write_text((folder / "preferences.jsonl").read_text())

@@ -85,7 +85,8 @@ def test_skips_undos_and_several_annotators_are_read_as_the_run_read_them(tmp_pa
 def test_a_journal_of_another_env_or_cut_short_is_refused_and_nothing_is_recorded(earlier_journal, tiny_kwargs, tmp_path):
     own = tmp_path / "own.jsonl"
     with pytest.raises(ValueError, match=r"preferences.jsonl is about other pairs: its env id 'Pendulum-v1'.*observation"):
-        PEBBLE("MlpPolicy", "MountainCarContinuous-v0", preference_journal=own, prior_preferences=[earlier_journal], **tiny_kwargs)
+        PEBBLE("MlpPolicy", "MountainCarContinuous-v0", preference_journal=own, prior_preferences=[earlier_journal],
+               **tiny_kwargs)  # fmt: skip
     torn = tmp_path / "torn.jsonl"
     torn.write_text(earlier_journal.read_text()[:-40])
     with pytest.raises(ValueError, match=r"torn.jsonl: line 61 is not JSON \(a last line cut"):
@@ -93,9 +94,10 @@ def test_a_journal_of_another_env_or_cut_short_is_refused_and_nothing_is_recorde
     other_segments = dict(tiny_kwargs, segment_length=20)
     with pytest.raises(ValueError, match=r"its segment_length 10 \(this run: 20\)"):
         PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=[earlier_journal], **other_segments)
-    with pytest.raises(ValueError, match="missing.jsonl is not a file"):
-        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=[tmp_path / "missing.jsonl"], **tiny_kwargs)
-    with pytest.raises(ValueError, match="prior_preferences must be a list of journal paths"):
+    with pytest.raises(ValueError, match=r"missing.jsonl is not a file"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=[tmp_path / "missing.jsonl"],
+               **tiny_kwargs)  # fmt: skip
+    with pytest.raises(ValueError, match=r"prior_preferences must be a list of journal paths"):
         PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, prior_preferences=str(earlier_journal), **tiny_kwargs)
     assert not own.exists()
 

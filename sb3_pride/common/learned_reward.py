@@ -20,11 +20,13 @@ FILE_FORMAT = "sb3_pride.learned_reward/1"
 
 def space_record(space: spaces.Box) -> dict[str, Any]:
     """A Box space as plain values a reward file holds (and ``torch.load(weights_only=True)`` reads back)."""
-    return {"shape": list(space.shape), "low": th.as_tensor(space.low), "high": th.as_tensor(space.high)}
+    record = {"shape": list(space.shape), "low": th.as_tensor(space.low), "high": th.as_tensor(space.high)}
+    return {**record, "dtype": str(space.dtype)}
 
 
 def space_from_record(record: dict[str, Any]) -> spaces.Box:
-    return spaces.Box(record["low"].numpy(), record["high"].numpy(), tuple(record["shape"]), dtype=np.float32)
+    dtype = np.dtype(record.get("dtype", "float32"))
+    return spaces.Box(record["low"].numpy().astype(dtype), record["high"].numpy().astype(dtype), tuple(record["shape"]), dtype)
 
 
 class LearnedReward:
