@@ -17,6 +17,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "disable")
 
@@ -34,7 +35,7 @@ from sb3_pride import PEBBLE
 from sb3_pride.reward import VecLearnedReward
 
 #: a PEBBLE that learns Pendulum-v1 in a few thousand steps from 200 scripted labels
-PEBBLE_SETTINGS = dict(
+PEBBLE_SETTINGS: dict[str, Any] = dict(
     learning_starts=500, unsupervised_steps=500, feedback_interval=1000, max_feedback=200, queries_per_session=50,
     segment_length=25, reward_kwargs=dict(net_arch=(64, 64)), policy_kwargs=dict(net_arch=[64, 64]),
 )  # fmt: skip
@@ -53,7 +54,7 @@ def zoo_ppo_settings() -> tuple[int, int, dict]:
 def true_return(model, seed: int, episodes: int) -> float:
     env = make_vec_env("Pendulum-v1", n_envs=1, seed=seed + 10_000)  # Monitor inside: the true return
     mean, _ = evaluate_policy(model, env, n_eval_episodes=episodes, deterministic=True)
-    return float(mean)
+    return float(mean)  # type: ignore[arg-type]
 
 
 def one_seed(seed: int, pebble_steps: int, ppo_steps: int | None, episodes: int, folder: Path) -> dict:
