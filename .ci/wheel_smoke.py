@@ -25,6 +25,26 @@ tiny = dict(
     policy_kwargs=dict(net_arch=[16]),
 )
 sb3_pride.PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", seed=0, **tiny).learn(400)
+
+# labels and rewards that outlive the run: a journal, r̂ on its own, SB3's PPO on it, the command line's fit
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+
+from stable_baselines3 import PPO  # noqa: E402
+from stable_baselines3.common.env_util import make_vec_env  # noqa: E402
+
+from sb3_pride.reward import LearnedReward, VecLearnedReward  # noqa: E402
+
+folder = tempfile.mkdtemp()
+earlier = sb3_pride.PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal=f"{folder}/a.jsonl", **tiny).learn(400)
+earlier.save_reward_model(f"{folder}/reward.pt")
+reusing = sb3_pride.PEBBLE("MlpPolicy", "Pendulum-v1", seed=1, prior_preferences=[f"{folder}/a.jsonl"], **tiny)
+assert len(reusing.preferences) == earlier.feedback_labeled > 0
+venv = VecLearnedReward(make_vec_env("Pendulum-v1", n_envs=2), LearnedReward.load(f"{folder}/reward.pt"))
+PPO("MlpPolicy", venv, n_steps=32, batch_size=32, n_epochs=1).learn(64)
+fit = [sys.executable, "-m", "sb3_pride.reward", "fit", f"{folder}/a.jsonl", "--out", f"{folder}/fit.pt"]
+assert "held-out preference accuracy" in subprocess.run(fit, capture_output=True, text=True, check=True).stdout
 model = sb3_pride.PRIDE(
     "MlpPolicy",
     "Pendulum-v1",
