@@ -218,7 +218,10 @@ def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | N
     sacs = [
         key
         for key, row in rows.items()
-        if key[0] == task and row["algo"] == "sac" and row["specs"][0]["timesteps"] == timesteps
+        if key[0] == task
+        and row["algo"] == "sac"
+        and row["specs"][0]["timesteps"] == timesteps
+        and not row["specs"][0].get("learned_reward")  # SAC on a learned r̂ is a row, not the ceiling
     ]
     return sacs[0] if sacs else None
 
