@@ -350,6 +350,8 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         env = VecLearnedReward(env, spec["learned_reward"])
     eval_env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"] + 10_000)
     model_kwargs = dict(kwargs)
+    for stale in ("preferences.jsonl", "reward.pt"):  # a failed attempt's: a fresh run must not take its answers back
+        (folder / stale).unlink(missing_ok=True)
     if spec["algo"] != "sac":  # the run's answers, for a later run to start from (prior_preferences)
         model_kwargs.setdefault("preference_journal", str(folder / "preferences.jsonl"))
     if spec.get("seconds_per_answer"):  # the teacher answers at a person's pace
@@ -418,6 +420,13 @@ def run_templates(spec: dict[str, Any], out: Path) -> dict[str, Any]:
     return {**spec, "overrides": fill(spec.get("overrides") or {}), "learned_reward": fill(spec.get("learned_reward"))}
 
 
+def needed_runs(spec: dict[str, Any], out: Path) -> list[Path]:
+    """The run folders of ``out`` whose files ``spec`` starts from (its ``prior_preferences`` and ``learned_reward``)."""
+    filled = run_templates(spec, out)
+    paths = [*(filled["overrides"].get("prior_preferences") or []), *filter(None, [filled["learned_reward"]])]
+    return [Path(path).parent for path in paths if Path(path).parent.parent == out]
+
+
 def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
     """
     Run every spec whose folder under ``out`` has no ``result.json`` yet, ``jobs`` at a time, each in its own process
@@ -429,8 +438,16 @@ def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
     running: list[tuple[subprocess.Popen, dict, float]] = []
     finished, failed = total - len(todo), 0
     while todo or running:
-        while todo and len(running) < jobs:
-            spec = todo.pop(0)
+        # a run that starts from another run's journal or r̂ waits until that run is done
+        ready = [spec for spec in todo if all((folder / "result.json").exists() for folder in needed_runs(spec, out))]
+        if todo and not ready and not running:  # what they start from failed, or is no run of this grid
+            for spec in todo:
+                missing = [folder.name for folder in needed_runs(spec, out) if not (folder / "result.json").exists()]
+                print(f"{run_name(spec)}: NOT RUN, it starts from runs without a result: {missing}", flush=True)
+            return failed + len(todo)
+        while ready and len(running) < jobs:
+            spec = ready.pop(0)
+            todo.remove(spec)
             (out / run_name(spec)).mkdir(parents=True, exist_ok=True)
             with open(out / run_name(spec) / "log.txt", "w") as log:
                 command = [sys.executable, __file__, "--out", str(out), "--worker", json.dumps(spec)]

@@ -389,6 +389,47 @@ def test_a_grid_runs_only_the_runs_without_a_result(grid, tmp_path, monkeypatch)
     assert started == []
 
 
+def test_a_run_that_starts_from_another_waits_for_it_and_is_not_run_when_it_failed(grid, tmp_path, monkeypatch):
+    """A run reading another run's journal starts only once that run has its result; never if that run failed."""
+    text = (
+        "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-2, feedback: [200]}\n"
+        "  - {configurations: [pebble_prior_labels], tasks: [walker-walk], seeds: 0-2, feedback: [200]}\n"
+    )
+    path = write_grid(tmp_path, text)
+    out = tmp_path / "runs"
+    events: list[str] = []
+
+    class FakeProcess:
+        """A worker that finishes at its second poll (so that runs overlap); seed 2's plain run fails."""
+
+        def __init__(self, command, **_):
+            spec = json.loads(command[command.index("--worker") + 1])
+            self.name, self.polls = grid.run.run_name(spec), 0
+            for needed in grid.run.needed_runs(spec, out):
+                assert (needed / "result.json").exists(), f"{self.name} started before {needed.name} was done"
+            events.append(f"start {self.name}")
+
+        @property
+        def returncode(self):
+            return 1 if self.name == "pebble_walker-walk_s2_fb200" else 0
+
+        def poll(self):
+            self.polls += 1
+            if self.polls < 2:
+                return None
+            if self.returncode == 0 and not (out / self.name / "result.json").exists():
+                (out / self.name / "result.json").write_text(json.dumps({"final_return": 1.0, "final_success": None}))
+            return self.returncode
+
+    monkeypatch.setattr(grid.run.subprocess, "Popen", FakeProcess)
+    monkeypatch.setattr(grid.run.time, "sleep", lambda seconds: None)
+    with pytest.raises(SystemExit, match="2 runs failed"):
+        grid.main([str(path), "--out", str(out), "--jobs", "3"])
+    started = [event.split()[1] for event in events]
+    # seed 0's prior run reads seed 1's journal and seed 2's reads seed 0's; seed 1's reads seed 2's, which failed
+    assert "pebble_walker-walk_s0_fb200_prior_labels" in started and "pebble_walker-walk_s1_fb200_prior_labels" not in started
+
+
 def test_dotted_overrides_merge_into_the_yaml_entrys_nested_dict(run):
     overrides = run.parse_overrides(["generator_kwargs.train_steps=2000", "policy_kwargs.net_arch=[64, 64]", "batch_size=512"])
     assert overrides == {"generator_kwargs": {"train_steps": 2000}, "policy_kwargs": {"net_arch": [64, 64]}, "batch_size": 512}
