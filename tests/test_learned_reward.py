@@ -195,3 +195,29 @@ def test_sac_from_scratch_on_a_pebble_runs_r_hat_comes_within_20_percent_of_that
     sac = SAC("MlpPolicy", env, seed=1, learning_starts=500, policy_kwargs=dict(net_arch=[64, 64])).learn(5000)
     sac_return, _ = evaluate_policy(sac, evaluation, n_eval_episodes=10)
     assert sac_return >= pebble_return - 0.2 * abs(pebble_return), (sac_return, pebble_return)
+
+
+def test_numpy_settings_are_saved_as_plain_numbers_and_read_back(tmp_path):
+    from conftest import TINY
+
+    settings = dict(TINY, segment_length=np.int64(10), reward_kwargs=dict(net_arch=(32, 32), learning_rate=np.float64(1e-3)))
+    PEBBLE("MlpPolicy", "Pendulum-v1", **settings).save_reward_model(tmp_path / "r.pt")
+    reward = LearnedReward.load(tmp_path / "r.pt")
+    assert reward.segment_length == 10 and reward.reward_kwargs["learning_rate"] == 1e-3
+
+
+def test_fit_keeps_a_pair_to_learn_from_and_the_command_line_names_bad_input(trained, tmp_path):
+    _, folder = trained
+    _, report = fit_reward([folder / "preferences.jsonl"], held_out=0.99, reward_kwargs=dict(net_arch=(8,), epochs=1))
+    assert report.train_pairs == 1 and report.held_out_pairs == 59
+    with pytest.raises(ValueError, match=r"reward_kwargs: unknown settings \['bogus'\]"):
+        fit_reward([folder / "preferences.jsonl"], reward_kwargs=dict(bogus=1))
+    for extra, message in (
+        (["--env", "NoSuchEnv-v0"], "env 'NoSuchEnv-v0' cannot be made"),
+        (["--reward-kwargs", "[1]"], "--reward-kwargs must be a JSON object"),
+    ):
+        command = [sys.executable, "-m", "sb3_pride.reward", "fit", str(folder / "preferences.jsonl"), "--out",
+                   str(tmp_path / "x.pt"), *extra]  # fmt: skip
+        refused = subprocess.run(command, capture_output=True, text=True)
+        assert refused.returncode == 2 and message in refused.stderr and "Traceback" not in refused.stderr
+    assert not (tmp_path / "x.pt").exists()

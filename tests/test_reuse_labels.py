@@ -111,3 +111,35 @@ def test_a_journal_without_a_header_is_checked_on_its_pairs(earlier_journal, tin
     assert len(model.preferences) == 60
     with pytest.raises(ValueError, match=r"holds pairs of shape \(2, 10, 4\), this run's are \(2, 10, 3\)"):
         PEBBLE("MlpPolicy", "MountainCarContinuous-v0", prior_preferences=[bare], **tiny_kwargs)
+
+
+def test_a_query_in_several_priors_is_one_preference_and_the_runs_own_journal_is_no_prior(
+    earlier_journal, tiny_kwargs, tmp_path
+):
+    twice = PEBBLE("MlpPolicy", "Pendulum-v1", prior_preferences=[earlier_journal, earlier_journal], **tiny_kwargs)
+    assert len(twice.preferences) == 60
+    with pytest.raises(ValueError, match=r"preferences.jsonl is this run's own preference_journal"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=earlier_journal, prior_preferences=[earlier_journal],
+               **tiny_kwargs)  # fmt: skip
+
+
+def test_a_journal_book_saved_without_a_header_loads_with_none(tmp_path):
+    import pickle
+
+    from sb3_pride.common.journal import JournalBook
+
+    book = JournalBook(tmp_path / "j.jsonl", (2, 5, 4))
+    del book.header, book.prior_ids  # as a book pickled before it had them
+    loaded = pickle.loads(pickle.dumps(book))
+    assert loaded.header is None and loaded.prior_ids == set()
+
+
+def test_the_header_is_written_with_the_first_answers_and_a_torn_header_is_cut(tmp_path):
+    from sb3_pride.common.journal import JournalBook
+
+    path = tmp_path / "j.jsonl"
+    path.write_text('{"journal": {"env_id": "Pend')  # a crash in the middle of the first write
+    book = JournalBook(path, (2, 5, 4), header={"env_id": "Pendulum-v1", "segment_length": 5})
+    book.record([JournalEntry(1, np.zeros((2, 5, 4), dtype=np.float32), 1.0)])
+    lines = path.read_text().splitlines()
+    assert json.loads(lines[0]) == {"journal": {"env_id": "Pendulum-v1", "segment_length": 5}} and len(lines) == 2

@@ -159,9 +159,14 @@ class PreferenceJournal:
                 file.seek(0)
                 file.truncate(file.read().rfind(b"\n") + 1)
 
-    def append(self, entries: list[JournalEntry]) -> None:
-        """Append ``entries`` and flush them to disk (fsync) before returning."""
-        records = []
+    def append(self, entries: list[JournalEntry], header: dict | None = None) -> None:
+        """
+        Append ``entries`` and flush them to disk (fsync) before returning; ``header`` (what the answers are about)
+        first, in the same write, when the file is new: a write cut short leaves neither.
+        """
+        if header is not None and self.path.exists() and self.path.stat().st_size > 0:
+            raise ValueError(f"preference_journal {self.path} is not empty: its header comes first")
+        records: list[dict] = [] if header is None else [{"journal": header}]
         for entry in entries:
             inputs = np.ascontiguousarray(entry.inputs, dtype=np.float32)
             records.append({
@@ -174,12 +179,6 @@ class PreferenceJournal:
                 **({} if entry.time is None else {"time": entry.time}),
             })  # fmt: skip
         self._write(records)
-
-    def write_header(self, header: dict) -> None:
-        """Start the file with ``header`` (what its answers are about), flushed to disk; the file must be empty."""
-        if self.path.exists() and self.path.stat().st_size > 0:
-            raise ValueError(f"preference_journal {self.path} is not empty: its header comes first")
-        self._write([{"journal": header}])
 
     def append_undo(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
         """
@@ -275,6 +274,9 @@ class JournalBook:
     def __getstate__(self) -> dict:
         return {**self.__dict__, "_history": None}  # read again from the file
 
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update({"header": None, "prior_ids": set(), **state})  # a book saved before it had them
+
     def history(self) -> list[JournalEntry]:
         """Every entry of the journal; one that does not fit this run (other pairs, fewer entries) is refused."""
         if self.path is None:
@@ -313,9 +315,9 @@ class JournalBook:
         if self.path is None or not entries:
             return
         journal = PreferenceJournal(self.path)
-        if self.header is not None and (not journal.path.exists() or journal.path.stat().st_size == 0):
-            journal.write_header(self.header)
-        journal.append(entries)
+        journal._cut_torn_line()  # a header cut short by a crash goes: the answers below say what they are about
+        new = not journal.path.exists() or journal.path.stat().st_size == 0
+        journal.append(entries, self.header if new else None)
         self.history().extend(entries)
 
     def retract(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
@@ -379,7 +381,8 @@ def read_prior_preferences(paths: Sequence[str | os.PathLike], header: dict, ent
     """
     if isinstance(paths, (str, os.PathLike)) or not all(isinstance(path, (str, os.PathLike)) for path in paths):
         raise ValueError(f"prior_preferences must be a list of journal paths, got {paths!r}")
-    inputs, labels, ids, sources = [], [], [], []
+    entries: list[JournalEntry] = []
+    sources = []
     for path in paths:
         journal = PreferenceJournal(path)
         if not journal.path.is_file():
@@ -392,21 +395,26 @@ def read_prior_preferences(paths: Sequence[str | os.PathLike], header: dict, ent
         ]
         if different:
             raise ValueError(f"prior_preferences: {os.fspath(path)} is about other pairs: its " + ", its ".join(different))
-        entries = merge_answers(journal.read(strict=True))
-        for entry in entries:
+        try:
+            own = journal.read(strict=True)
+        except ValueError as error:
+            raise ValueError(str(error).replace("preference_journal", "prior_preferences:", 1)) from None
+        for entry in own:
             if entry.inputs.shape != tuple(entry_shape):
                 raise ValueError(
                     f"prior_preferences: {os.fspath(path)} holds pairs of shape {entry.inputs.shape}, this run's are "
                     f"{tuple(entry_shape)} (2, segment_length, obs_dim + action_dim)"
                 )
-        answered = [entry for entry in entries if not np.isnan(entry.label)]
-        inputs += [entry.inputs for entry in answered]
-        labels += [entry.label for entry in answered]
-        ids += [entry.id for entry in entries]
+        entries += own
         digest = hashlib.sha1(journal.path.read_bytes()).hexdigest()
-        sources.append({"path": os.fspath(path), "sha1": digest, "labels": len(answered)})
-    stacked = np.stack(inputs).astype(np.float32) if inputs else np.zeros((0, *entry_shape), dtype=np.float32)
-    return PriorPreferences(stacked, np.array(labels, dtype=np.float32), ids, sources)
+        labelled = {entry.id for entry in merge_answers(own) if not np.isnan(entry.label)}
+        sources.append({"path": os.fspath(path), "sha1": digest, "labels": len(labelled)})
+    # a query answered in several journals (or one journal given twice) is one preference: its answers' mean μ
+    merged = merge_answers(entries)
+    answered = [entry for entry in merged if not np.isnan(entry.label)]
+    inputs = np.stack([entry.inputs for entry in answered]).astype(np.float32) if answered else np.zeros((0, *entry_shape))
+    labels = np.array([entry.label for entry in answered], dtype=np.float32)
+    return PriorPreferences(inputs.astype(np.float32), labels, [entry.id for entry in merged], sources)
 
 
 def _plain(value: object) -> object:

@@ -18,6 +18,19 @@ from sb3_pride.common.reward_learner import RewardLearner
 FILE_FORMAT = "sb3_pride.learned_reward/1"
 
 
+def plain(value: Any) -> Any:
+    """``value`` with NumPy scalars and arrays made Python numbers and lists (what ``weights_only`` loading reads)."""
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, dict):
+        return {plain(key): plain(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(plain(item) for item in value)
+    return value
+
+
 def space_record(space: spaces.Box) -> dict[str, Any]:
     """A Box space as plain values a reward file holds (and ``torch.load(weights_only=True)`` reads back)."""
     record = {"shape": list(space.shape), "low": th.as_tensor(space.low), "high": th.as_tensor(space.high)}
@@ -61,7 +74,9 @@ class LearnedReward:
     def of_model(cls, model: Any) -> "LearnedReward":
         """The r̂ of a ``PEBBLE`` or ``PRIDE`` model (shared with it, not copied)."""
         spaces_ = (model.observation_space, model.action_space)
-        return cls(model.reward_learner, *spaces_, model.segment_length, model.reward_kwargs, env_id(model.env))
+        journal_header = model.feedback.journal.header or {}  # a model loaded without an env: its journal's env id
+        name = env_id(model.env) or journal_header.get("env_id")
+        return cls(model.reward_learner, *spaces_, model.segment_length, model.reward_kwargs, name)
 
     @classmethod
     def new(
@@ -75,6 +90,7 @@ class LearnedReward:
     ) -> "LearnedReward":
         """An untrained r̂ for these spaces (``reward_kwargs`` checked as ``PEBBLE`` checks them)."""
         obs_dim, action_dim = int(np.prod(observation_space.shape)), int(np.prod(action_space.shape))
+        RewardLearner.check_kwargs(reward_kwargs or {}, segment_length)
         learner = RewardLearner(obs_dim, action_dim, segment_length, device=device, **(reward_kwargs or {}))
         return cls(learner, observation_space, action_space, segment_length, reward_kwargs, env_id)
 
@@ -110,10 +126,10 @@ class LearnedReward:
             "format": FILE_FORMAT,
             "observation_space": space_record(self.observation_space),
             "action_space": space_record(self.action_space),
-            "segment_length": self.segment_length,
-            "reward_kwargs": self.reward_kwargs,
+            "segment_length": int(self.segment_length),
+            "reward_kwargs": plain(self.reward_kwargs),
             "env_id": self.env_id,
-            "history": self.learner.history,
+            "history": plain(self.learner.history),
             "ensemble": self.learner.ensemble.state_dict(),
         }
         with atomic_write_path(path) as temporary:

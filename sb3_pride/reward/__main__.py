@@ -60,6 +60,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "fit":
             reward_kwargs = json.loads(args.reward_kwargs)
+            if not isinstance(reward_kwargs, dict):
+                raise ValueError(f"--reward-kwargs must be a JSON object of RewardLearner settings, got {args.reward_kwargs}")
             reward, result = fit_reward(args.journals, args.env, reward_kwargs, args.held_out, args.seed, device="cpu")
             reward.save(args.out)
             print(
@@ -68,7 +70,10 @@ def main(argv: list[str] | None = None) -> int:
                 f"on {result.held_out_pairs} pairs; written to {args.out}"
             )
             return 0
-        env = gym.make(args.env)
+        try:
+            env = gym.make(args.env)
+        except gym.error.Error as error:
+            raise ValueError(f"--env {args.env!r} cannot be made: {error}") from None
         model = None if args.model is None else load_model(args.model)
         if args.reward is not None:
             reward = LearnedReward.load(args.reward, device="cpu")

@@ -53,7 +53,10 @@ def journal_spaces(journals: list[str], env: str | gym.Env | None) -> tuple[spac
     if env is None and len(ids) != 1:
         found = f"name {ids}" if ids else "name no env id (no header)"
         raise ValueError(f"journals {journals} {found}: give the env (--env) whose spaces r̂ reads")
-    made: gym.Env = gym.make(env or ids[0]) if not isinstance(env, gym.Env) else env
+    try:
+        made: gym.Env = gym.make(env or ids[0]) if not isinstance(env, gym.Env) else env
+    except gym.error.Error as error:
+        raise ValueError(f"env {env or ids[0]!r} cannot be made: {error}") from None
     try:
         observation_space, action_space = made.observation_space, made.action_space
         env_id = made.spec.id if made.spec is not None else None
@@ -98,11 +101,15 @@ def fit_reward(
         if not os.path.isfile(path):
             raise ValueError(f"journal {path} is not a file")
     observation_space, action_space, env_id = journal_spaces(paths, env)
-    first = PreferenceJournal(paths[0]).read(strict=True)
-    header = PreferenceJournal(paths[0]).header() or {}
-    segment_length = header.get("segment_length") or (first[0].inputs.shape[1] if first else 0)
+    segment_length = 0
+    for path in paths:  # from the first header that says, else the first answer's pair
+        journal = PreferenceJournal(path)
+        entries = [] if (journal.header() or {}).get("segment_length") else journal.read(strict=True)
+        segment_length = (journal.header() or {}).get("segment_length") or (entries[0].inputs.shape[1] if entries else 0)
+        if segment_length:
+            break
     if not segment_length:
-        raise ValueError(f"journal {paths[0]} holds no answers")
+        raise ValueError(f"journals {paths} hold no answers")
     header = journal_header(env_id, observation_space.shape, action_space.shape, segment_length)
     input_dim = int(np.prod(observation_space.shape)) + int(np.prod(action_space.shape))
     priors = read_prior_preferences(paths, header, (2, segment_length, input_dim))
@@ -110,7 +117,7 @@ def fit_reward(
         raise ValueError(f"journals {paths} hold no labelled answers")
     rng = np.random.default_rng(seed)
     order = rng.permutation(len(priors.labels))
-    n_held_out = round(held_out * len(order)) if len(order) > 1 else 0
+    n_held_out = min(round(held_out * len(order)), len(order) - 1)  # at least one pair to learn from
     held, kept = order[:n_held_out], order[n_held_out:]
     th.manual_seed(seed)
     reward_kwargs = {"epochs": FIT_EPOCHS, **(reward_kwargs or {})}
