@@ -195,6 +195,11 @@ def test_sac_from_scratch_on_a_pebble_runs_r_hat_comes_within_20_percent_of_that
     sac = SAC("MlpPolicy", env, seed=1, learning_starts=500, policy_kwargs=dict(net_arch=[64, 64])).learn(5000)
     sac_return, _ = evaluate_policy(sac, evaluation, n_eval_episodes=10)
     assert sac_return >= pebble_return - 0.2 * abs(pebble_return), (sac_return, pebble_return)
+    # the deliberately bad case: the same SAC on a reward model that is wrong (r̂ = -r) falls far short
+    wrong = LearnedRewardWrapper(Monitor(gym.make("Pendulum-v1")), KnownReward(-1.0))
+    misled = SAC("MlpPolicy", wrong, seed=1, learning_starts=500, policy_kwargs=dict(net_arch=[64, 64])).learn(5000)
+    misled_return, _ = evaluate_policy(misled, evaluation, n_eval_episodes=10)
+    assert misled_return < pebble_return - 0.2 * abs(pebble_return), (misled_return, pebble_return)
 
 
 def test_numpy_settings_are_saved_as_plain_numbers_and_read_back(tmp_path):
