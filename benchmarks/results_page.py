@@ -140,7 +140,7 @@ def runs_of(row: dict) -> list[dict]:
     for spec in sorted(row["specs"], key=lambda spec: spec["seed"]):
         folder = row["out"] / run.run_name(spec)
         if (folder / "result.json").exists():
-            found.append({**plot.load_run(folder, progress=False),
+            found.append({**plot.load_run(folder, progress=False), "folder": folder,
                           "result": json.loads((folder / "result.json").read_text())})  # fmt: skip
     return found
 
@@ -211,6 +211,28 @@ def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
     """Plain PEBBLE at the task's largest budget: what every configuration of the task is compared with."""
     pebbles = [key for key in rows if key[0] == task and key[1] == "pebble"]
     return max(pebbles, key=lambda key: key[2]) if pebbles else None
+
+
+def last_correlations(runs: list[dict]) -> np.ndarray | None:
+    """Each run's last corr(r̂, r) (``reward_model/true_reward_corr``), for the runs that logged one; None: none did."""
+    import csv
+
+    values = []
+    for found in runs:
+        path = found["folder"] / "progress.csv"
+        if not path.exists():
+            continue
+        with open(path, newline="") as file:
+            logged = [line.get("reward_model/true_reward_corr") or "" for line in csv.DictReader(file)]
+        logged = [value for value in logged if value not in ("", "nan")]
+        if logged:
+            values.append(float(logged[-1]))
+    return np.array(values) if values else None
+
+
+def corr_text(row: dict) -> str:
+    """A row's mean last corr(r̂, r), or — where its runs learned no r̂ (SAC)."""
+    return "—" if row.get("last_corr") is None else f"{row['last_corr']['mean']:.2f}"
 
 
 def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | None:
@@ -356,6 +378,7 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         row["final_return"] = spread(last)
         row["area_under_curve"] = None if not found else round(float(sum(r["curve"]["true_return"].mean() for r in found) / len(found)), 4)  # fmt: skip
         row["final_success"] = round(float(sum(successes) / len(successes)), 4) if has_success else None
+        row["last_corr"] = spread(last_correlations(found))
     pairs, names = {}, {}
     for key, row in rows.items():
         reference = reference_key(rows, row["task"])
@@ -500,19 +523,20 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
                 "P: the probability that a run of the configuration ends above a run of PEBBLE at "
                 f"{budget_phrase(reference)}, on the return of the last {plot.LAST_EVALUATIONS} evaluations; p: the "
                 "one-sided Mann–Whitney test of the same; without best 1 / 2: P [95% CI] with the configuration's best "
-                "seed, and its best two, left out.",
+                "seed, and its best two, left out; corr(r̂, r), last: the mean over seeds of each run's last correlation "
+                "of r̂ with the true reward on its stored transitions.",
                 "",
             ]
         lines += [f"| configuration | queries asked | u | seeds | code | return (last {plot.LAST_EVALUATIONS} evaluations) | "
-                  "share of SAC | final return | area under curve | P(> PEBBLE) [95% CI] | Mann–Whitney p | "
-                  "without best 1 / 2 | reproduce |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "share of SAC | corr(r̂, r), last | final return | area under curve | P(> PEBBLE) [95% CI] | "
+                  "Mann–Whitney p | without best 1 / 2 | reproduce |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
         for row in rows:
             entry, ratio = row["against_pebble"], cell(row["ratio"])
             area = "" if row["area_under_curve"] is None else number(row["area_under_curve"])
             mann_whitney = "—" if entry is None else mann_whitney_text(entry["mann_whitney_p"]).removeprefix("= ")
             lines.append(f"| {row['name']} (`{row['configuration']}`) | {budget_text(row)} | {ratio} | {len(row['seeds'])} | "
-                         f"{code_text(row['code'])} | {final_text(row)} | {share_text(row)} | "
+                         f"{code_text(row['code'])} | {final_text(row)} | {share_text(row)} | {corr_text(row)} | "
                          f"{final_text(row, 'final_return')} | {area} | "
                          f"{p_text(entry)} | {mann_whitney} | {without_best_text(entry)} | `{row['command']}` |")  # fmt: skip
         comparisons = [c for c in data["comparisons"] if c["task"] == task]

@@ -778,3 +778,19 @@ def test_a_run_keeps_its_journal_and_r_hat_for_runs_that_start_from_them(run, tm
     learner["feedback"] = 10
     run.worker(learner, tmp_path / run.run_name(learner))
     assert json.loads((tmp_path / run.run_name(learner) / "result.json").read_text())["final_return"] is not None
+
+
+def test_each_rows_last_corr_is_its_runs_last_logged_correlation(page):
+    """The page's corr(r̂, r) of PEBBLE at 400 on walker-walk, recounted from each run's progress.csv."""
+    import csv
+
+    data = json.loads((ROOT / "benchmarks/results/results.json").read_text())
+    row = next(r for r in data["tasks"]["walker-walk"] if r["configuration"] == "pebble" and r["feedback"] == 400)
+    recounted = []
+    for name in row["runs"]:
+        with open(ROOT / "benchmarks/results/runs" / name / "progress.csv", newline="") as file:
+            logged = [line["reward_model/true_reward_corr"] for line in csv.DictReader(file)]
+        recounted.append(float([value for value in logged if value][-1]))
+    assert row["last_corr"]["per_seed"] == [round(value, 3) for value in recounted]
+    sac = next(r for r in data["tasks"]["walker-walk"] if r["algo"] == "sac")
+    assert sac["last_corr"] is None  # SAC learns no r̂
