@@ -46,7 +46,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 ROOT = Path(__file__).resolve().parent.parent
-DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "walker-run"}
+DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "walker-run", "finger-spin"}
 ALGOS = ("pride", "pebble", "sac")
 
 
