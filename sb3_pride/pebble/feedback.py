@@ -187,6 +187,8 @@ class FeedbackLoop:
         #: the published session whose answers are awaited (None: no session is open); never saved
         self.pending: PendingFeedback | None = None
         self._records: deque[tuple[str, float]] = deque()  # what the teacher asked to log (thread-safe appends)
+        #: the reward learner's history (the same list), shown to an interactive teacher when it is attached
+        self.reward_history: list[dict] = []
 
     def __getstate__(self) -> dict:
         # a session in progress is not saved (the journal keeps its answers); of the teachers given by name, only
@@ -214,14 +216,16 @@ class FeedbackLoop:
     ) -> None:
         """
         Resolve the teacher; an ``InteractiveTeacher`` is attached to the env and the replay buffer (so that an env it
-        cannot show fails now, not at the first feedback session) and shown ``progress`` (asked, budget); any other
-        teacher records nothing beside the transitions.
+        cannot show fails now, not at the first feedback session) and shown ``progress`` (asked, budget) and the
+        ``reward_history`` so far; any other teacher records nothing beside the transitions.
         """
         resolved = self.resolve(teacher, seed)
         if isinstance(resolved, InteractiveTeacher):
             if env is not None and buffer is not None:
                 resolved.attach(env, buffer)
                 resolved.show_progress(*progress)
+                if self.reward_history:  # a loaded model's page shows what r̂ learned so far
+                    resolved.show_reward_history(self.reward_history)
         elif buffer is not None:  # a resumed buffer may say otherwise
             buffer.record_render_states = False
 

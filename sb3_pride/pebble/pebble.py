@@ -190,7 +190,7 @@ class PEBBLE(AtomicSaves, SAC):
         previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's selection and the history go on
         carried = self.__dict__.pop("migrated_label_selection", getattr(previous, "label_selection", None))
         self.reward_learner = RewardLearner(obs_dim, action_dim, self.segment_length, device=self.device, **self.reward_kwargs)
-        self.reward_learner.history = list(getattr(previous, "history", []))
+        self.reward_learner.history = self.feedback.reward_history = list(getattr(previous, "history", []))
         if carried is not None and self.reward_learner.label_selection is not None:
             self.reward_learner.label_selection = carried
         # r̂ and REED's heads: state dicts under names of their own (the learner's data is saved apart)
