@@ -184,7 +184,7 @@ def test_a_new_model_takes_an_interactive_teachers_journaled_answers_back(tiny_k
     assert len(PreferenceJournal(journal).read()) == 60
 
 
-class WatchingTeacher(LoggingTeacher):
+class ShownHistoryTeacher(LoggingTeacher):
     """Keeps what it is shown of r̂'s history, as a person's page does."""
 
     def __init__(self):
@@ -198,11 +198,11 @@ class WatchingTeacher(LoggingTeacher):
 def test_an_interactive_teacher_is_shown_r_hats_history_after_each_update_and_when_a_model_is_loaded(tiny_kwargs, tmp_path):
     import gymnasium as gym
 
-    teacher = WatchingTeacher()
+    teacher = ShownHistoryTeacher()
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, **tiny_kwargs).learn(700)
     assert [[entry["session"] for entry in shown] for shown in teacher.shown] == [[1], [1, 2]]
     assert teacher.shown[-1] == model.reward_learner.history
     model.save(tmp_path / "model.zip")
-    again = WatchingTeacher()
+    again = ShownHistoryTeacher()
     PEBBLE.load(tmp_path / "model.zip", env=gym.make("Pendulum-v1"), teacher=again)
     assert again.shown == [model.reward_learner.history]
