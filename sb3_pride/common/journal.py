@@ -132,9 +132,9 @@ class PreferenceJournal:
                     break
                 torn = " (a last line cut in the middle of a write)" if number == len(lines) else ""
                 raise ValueError(f"preference_journal {self.path}: line {number} is not JSON{torn}") from None
+            if number == 1 and isinstance(record, dict) and "journal" in record:
+                continue  # the header
             if not isinstance(record, dict) or "journal" in record:
-                if number == 1 and isinstance(record, dict):
-                    continue
                 raise ValueError(f"preference_journal {self.path}: line {number} is not an answer")
             if record.get("undo"):
                 undone = undone_index(entries, record["session"], record.get("id"), record.get("annotator"))
@@ -162,11 +162,9 @@ class PreferenceJournal:
     def append(self, entries: list[JournalEntry], header: dict | None = None) -> None:
         """
         Append ``entries`` and flush them to disk (fsync) before returning; ``header`` (what the answers are about)
-        first, in the same write, when the file is new: a write cut short leaves neither.
+        goes first, in the same write, when the file holds nothing yet: a write cut short leaves neither.
         """
-        if header is not None and self.path.exists() and self.path.stat().st_size > 0:
-            raise ValueError(f"preference_journal {self.path} is not empty: its header comes first")
-        records: list[dict] = [] if header is None else [{"journal": header}]
+        records: list[dict] = []
         for entry in entries:
             inputs = np.ascontiguousarray(entry.inputs, dtype=np.float32)
             records.append({
@@ -178,7 +176,7 @@ class PreferenceJournal:
                 **({} if entry.annotator is None else {"annotator": entry.annotator}),
                 **({} if entry.time is None else {"time": entry.time}),
             })  # fmt: skip
-        self._write(records)
+        self._write(records, header)
 
     def append_undo(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
         """
@@ -192,9 +190,11 @@ class PreferenceJournal:
             record["annotator"] = annotator
         self._write([record])
 
-    def _write(self, records: list[dict]) -> None:
+    def _write(self, records: list[dict], header: dict | None = None) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._cut_torn_line()
+        self._cut_torn_line()  # a header cut short by a crash goes too: the header is written again below
+        if header is not None and (not self.path.exists() or self.path.stat().st_size == 0):
+            records = [{"journal": header}, *records]
         with open(self.path, "a") as file:
             file.writelines(json.dumps(record) + "\n" for record in records)
             file.flush()
@@ -314,10 +314,7 @@ class JournalBook:
         """Append answers to the journal, flushed to disk before returning (``FeedbackContext.record``)."""
         if self.path is None or not entries:
             return
-        journal = PreferenceJournal(self.path)
-        journal._cut_torn_line()  # a header cut short by a crash goes: the answers below say what they are about
-        new = not journal.path.exists() or journal.path.stat().st_size == 0
-        journal.append(entries, self.header if new else None)
+        PreferenceJournal(self.path).append(entries, self.header)
         self.history().extend(entries)
 
     def retract(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
@@ -368,16 +365,19 @@ def journal_header(env_id: str | None, observation_shape: Any, action_shape: Any
     }
 
 
-def read_prior_preferences(paths: Sequence[str | os.PathLike], header: dict, entry_shape: tuple[int, ...]) -> PriorPreferences:
+def read_prior_preferences(
+    paths: Sequence[str | os.PathLike], header: dict, entry_shape: tuple[int, ...], own_journal: str | None = None
+) -> PriorPreferences:
     """
     Read earlier runs' journals whole, as each run read its own (skips and undos applied), and refuse any that is not
-    about this run's pairs: a missing file, a last line cut in the middle of a write, a header whose env id,
-    observation or action shape or segment length differs from ``header``'s, or pairs of another shape than
-    ``entry_shape`` (a journal without a header is checked on its pairs' shape only).
+    about this run's pairs: the run's own journal, a missing file, a last line cut in the middle of a write, a header
+    whose env id, observation or action shape or segment length differs from ``header``'s, or pairs of another shape
+    than ``entry_shape`` (a journal without a header is checked on its pairs' shape only).
 
     :param paths: the journals, e.g. ``["runs/a/preferences.jsonl"]``
     :param header: this run's journal header (``PreferenceJournal``)
     :param entry_shape: (2, segment_length, obs_dim + action_dim)
+    :param own_journal: the run's own journal (its answers are taken back as the run's, not as priors)
     """
     if isinstance(paths, (str, os.PathLike)) or not all(isinstance(path, (str, os.PathLike)) for path in paths):
         raise ValueError(f"prior_preferences must be a list of journal paths, got {paths!r}")
@@ -385,6 +385,8 @@ def read_prior_preferences(paths: Sequence[str | os.PathLike], header: dict, ent
     sources = []
     for path in paths:
         journal = PreferenceJournal(path)
+        if own_journal is not None and os.path.realpath(path) == os.path.realpath(own_journal):
+            raise ValueError(f"prior_preferences: {os.fspath(path)} is this run's own preference_journal")
         if not journal.path.is_file():
             raise ValueError(f"prior_preferences: {os.fspath(path)} is not a file")
         theirs = journal.header() or {}

@@ -194,10 +194,9 @@ class RewardLearner:
             loss, accuracy, epochs, consistency_loss, *((selection.trusted, selection.flipped) if selection else (None, None))
         )
 
-    def record(self, session: int, step: int, labels: int, report: RewardLearningReport, correlation: float) -> list[dict]:
-        """Add a reward update to ``history`` (what the reward report and a teacher's page show); return the history."""
+    def record(self, session: int, step: int, labels: int, report: RewardLearningReport, correlation: float) -> None:
+        """Add a reward update to ``history`` (what the reward report and a teacher's page show)."""
         self.history.append(dict(session=session, step=step, labels=labels, accuracy=report.accuracy, correlation=correlation))
-        return self.history
 
     def predict(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """r̂(s, a), the members' mean, NumPy in and out."""

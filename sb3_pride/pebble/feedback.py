@@ -28,15 +28,6 @@ if TYPE_CHECKING:
     from sb3_pride.common.reward_model import PreferenceDataset
 
 
-def check_prior_paths(prior_paths: "Sequence[str | os.PathLike]", journal: str | None) -> None:
-    """Refuse the run's own journal among its priors: its answers are taken back as the run's, not as priors."""
-    if isinstance(prior_paths, (str, os.PathLike)) or journal is None:
-        return  # a single path is refused by read_prior_preferences, with what it expects
-    for path in prior_paths:
-        if isinstance(path, (str, os.PathLike)) and os.path.realpath(path) == os.path.realpath(journal):
-            raise ValueError(f"prior_preferences: {os.fspath(path)} is this run's own preference_journal")
-
-
 @dataclass
 class PendingFeedback:
     """
@@ -225,9 +216,14 @@ class FeedbackLoop:
                 resolved.attach(env, buffer)
                 resolved.show_progress(*progress)
                 if self.reward_history:  # a loaded model's page shows what r̂ learned so far
-                    resolved.show_reward_history(self.reward_history)
+                    self.show_reward_history()
         elif buffer is not None:  # a resumed buffer may say otherwise
             buffer.record_render_states = False
+
+    def show_reward_history(self) -> None:
+        """Show an ``InteractiveTeacher`` the reward learner's history (``reward_history``); any other teacher: nothing."""
+        if isinstance(self.teacher, InteractiveTeacher):
+            self.teacher.show_reward_history(self.reward_history)
 
     def open_journal(
         self,
@@ -246,8 +242,7 @@ class FeedbackLoop:
         header, prior_ids = self.journal.header or header, self.journal.prior_ids
         entry_shape = (2, *preferences.inputs.shape[2:])
         if prior_paths and len(preferences) == 0 and "prior_preferences" not in header:
-            check_prior_paths(prior_paths, path)
-            priors = read_prior_preferences(prior_paths, header, entry_shape)
+            priors = read_prior_preferences(prior_paths, header, entry_shape, own_journal=path)
             preferences.add(priors.inputs, priors.labels)
             header, prior_ids = {**header, "prior_preferences": priors.sources}, set(priors.ids)
         self.journal = JournalBook(path, entry_shape, included, header, prior_ids)

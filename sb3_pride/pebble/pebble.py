@@ -372,11 +372,8 @@ class PEBBLE(AtomicSaves, SAC):
             if value is not None:
                 self.logger.record(f"reward_model/{key}", value)
         self.logger.record("reward_model/true_reward_corr", correlation)
-        history = self.reward_learner.record(
-            self.feedback_sessions, self.num_timesteps, len(self.preferences), report, correlation
-        )
-        if isinstance(self.feedback.teacher, InteractiveTeacher):
-            self.feedback.teacher.show_reward_history(history)
+        self.reward_learner.record(self.feedback_sessions, self.num_timesteps, len(self.preferences), report, correlation)
+        self.feedback.show_reward_history()  # the learner's history is the feedback loop's reward_history
         if self.verbose > 0:
             print(
                 f"feedback session {self.feedback_sessions} at step {self.num_timesteps}: "

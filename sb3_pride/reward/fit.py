@@ -104,8 +104,10 @@ def fit_reward(
     segment_length = 0
     for path in paths:  # from the first header that says, else the first answer's pair
         journal = PreferenceJournal(path)
-        entries = [] if (journal.header() or {}).get("segment_length") else journal.read(strict=True)
-        segment_length = (journal.header() or {}).get("segment_length") or (entries[0].inputs.shape[1] if entries else 0)
+        segment_length = (journal.header() or {}).get("segment_length") or 0
+        if not segment_length:
+            entries = journal.read(strict=True)
+            segment_length = entries[0].inputs.shape[1] if entries else 0
         if segment_length:
             break
     if not segment_length:

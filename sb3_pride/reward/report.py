@@ -65,13 +65,19 @@ def episode_rewards(
     return results
 
 
-def plot_episode(rewards: EpisodeRewards, path: str | os.PathLike, title: str = "") -> Path:
-    """One episode's r̂ (with ± the members' spread, on its own axis: r̂'s scale is arbitrary) beside the true reward."""
+def pyplot():
+    """matplotlib's pyplot, drawing to files (no display)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    return plt
+
+
+def plot_episode(rewards: EpisodeRewards, path: str | os.PathLike, title: str = "") -> Path:
+    """One episode's r̂ (with ± the members' spread, on its own axis: r̂'s scale is arbitrary) beside the true reward."""
+    plt = pyplot()
     steps = np.arange(len(rewards.true))
     figure, true_axis = plt.subplots(figsize=(8, 3.5))
     true_axis.plot(steps, rewards.true, color="tab:gray", label="true reward r")
@@ -92,11 +98,7 @@ def plot_episode(rewards: EpisodeRewards, path: str | os.PathLike, title: str = 
 
 def plot_history(history: list[dict], path: str | os.PathLike) -> Path:
     """corr(r̂, r) on the stored transitions after each feedback session (``RewardLearner.history``)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
+    plt = pyplot()
     figure, axis = plt.subplots(figsize=(6, 3.5))
     labels = [entry["labels"] for entry in history]
     axis.plot(labels, [entry["correlation"] for entry in history], marker="o")
