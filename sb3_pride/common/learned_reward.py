@@ -13,22 +13,10 @@ from gymnasium import spaces
 from sb3_pride.common.env_checks import env_id
 from sb3_pride.common.journal import atomic_write_path
 from sb3_pride.common.reward_learner import RewardLearner
+from sb3_pride.common.utils import plain
 
 #: what a reward file says it is (``LearnedReward.save``)
 FILE_FORMAT = "sb3_pride.learned_reward/1"
-
-
-def plain(value: Any) -> Any:
-    """``value`` with NumPy scalars and arrays made Python numbers and lists (what ``weights_only`` loading reads)."""
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, dict):
-        return {plain(key): plain(item) for key, item in value.items()}
-    if isinstance(value, (list, tuple)):
-        return type(value)(plain(item) for item in value)
-    return value
 
 
 def space_record(space: spaces.Box) -> dict[str, Any]:

@@ -5,6 +5,7 @@ seeding of their layers and draws.
 
 import contextlib
 import dataclasses
+import math
 import os
 import sys
 from collections.abc import Callable, Iterator
@@ -103,3 +104,22 @@ def caller_stacklevel(skipped: tuple[str, ...] = ("sb3_pride", "stable_baselines
     while frame.f_back is not None and any(frame.f_code.co_filename.startswith(folder + os.sep) for folder in folders):
         frame, level = frame.f_back, level + 1
     return level
+
+
+def plain(value: Any, nan_as_none: bool = False) -> Any:
+    """
+    ``value`` with NumPy scalars and arrays made Python numbers and lists, in dicts, lists and tuples at any depth: what
+    ``torch.load(weights_only=True)`` reads back, and (``nan_as_none``: a NaN or infinite float as None) what JSON
+    carries.
+    """
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+    elif isinstance(value, np.generic):
+        value = value.item()
+    if isinstance(value, dict):
+        return {plain(key): plain(item, nan_as_none) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(plain(item, nan_as_none) for item in value)
+    if nan_as_none and isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value

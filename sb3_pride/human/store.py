@@ -10,10 +10,10 @@ import time
 from typing import Any
 
 from sb3_pride.common.journal import JournalEntry
+from sb3_pride.common.utils import plain
 from sb3_pride.human.pacing import JournalPace
 from sb3_pride.human.questions import ALLOWED_LABELS, Answer, KnownPair, Question, Refused, Session
 from sb3_pride.human.quality import HIDDEN_DURING_SESSION, Quality
-from sb3_pride.human.reward_history import plain_history
 from sb3_pride.human.settings import ANONYMOUS, HAND_OVER_AFTER
 
 #: questions handed to an annotator at a time: the one shown and the next, whose clips the page preloads
@@ -71,12 +71,12 @@ class AnswerStore:
     def show_reward_history(self, history: list[dict]) -> None:
         """
         Every reward update so far, shown on the page: ``WebTeacher.show_reward_history()``. A copy of plain values is
-        kept (``plain_history``: a NaN becomes None), nothing of ``history`` itself.
+        kept (``plain``: NumPy's numbers as Python's, a NaN as None), nothing of ``history`` itself.
 
         :param history: one dict per reward update, oldest first
         """
         with self.condition:
-            self.reward_history = plain_history(history)
+            self.reward_history = [plain(dict(entry), nan_as_none=True) for entry in history]
 
     def begin(self, session: Session) -> None:
         """Open ``session``: its queries count as asked from now on. Raises ``RuntimeError`` while another is open."""
