@@ -89,6 +89,19 @@ CONFIGS: dict[str, dict[str, Any]] = {
         "pseudo_labels": True,
         "dynamics_consistency": {"epochs": 5},
     },
+    # longer reward training per session on the pre-trained encoder: every epoch (no early stop), and SURF-like
+    # many updates (200 epochs: 400 minibatches at 200 labels)
+    "consistency, 5 epochs + no early stop": {"dynamics_consistency": {"epochs": 5}, "target_accuracy": 1.0},
+    "consistency, 5 epochs + 200 epochs": {
+        "dynamics_consistency": {"epochs": 5},
+        "target_accuracy": 1.0,
+        "max_epochs": 200,
+    },
+    # cheaper consistency passes: a random 10k of the transitions per pass, with REED's batch and a larger one
+    "consistency, 5 epochs over 10k": {"dynamics_consistency": {"epochs": 5, "max_transitions": 10_000}},
+    "consistency, 5 epochs over 10k, batch 512": {
+        "dynamics_consistency": {"epochs": 5, "max_transitions": 10_000, "batch_size": 512}
+    },
 }
 
 DECISION_RULE = (
@@ -100,6 +113,63 @@ DECISION_RULE = (
     "must not be lower than plain's at the same budget by more than 0.02 (a sanity check, not a ranking). The "
     "flipped-label row must read a negative corr and an accuracy below 0.5 at every budget, or the bench is broken."
 )
+
+
+INCUMBENT_RULE = (
+    "Written before the screen ran, for a screen against an incumbent (--incumbent), on the same seeds and labels. "
+    "Primary metric: mean held-out corr(r̂, r) over seeds at 200 labels (half the tier's 400). A configuration "
+    "**replaces** the incumbent if (a) at 200 labels its mean corr exceeds the incumbent's by more than the larger of "
+    "the two standard deviations and (b) at 100 labels its mean corr is not below the incumbent's; among those, the "
+    "highest mean corr at 200 labels is **chosen**. A configuration is a **cheaper equal** if at 100 and at 200 labels "
+    "its mean corr is at least the incumbent's minus 0.02 and its mean fit time at 200 labels (consistency passes and "
+    "reward training, one process, configurations in turns) is below the incumbent's; the cheapest cheaper equal is "
+    "**chosen as cheaper**. Held-out pair accuracy must not be lower than the incumbent's at the same budget by more "
+    "than 0.02 (a sanity check, not a ranking)."
+)
+
+
+def decide_against(table: dict[str, Any], incumbent: str) -> dict[str, Any]:
+    """Apply ``INCUMBENT_RULE`` to the summary."""
+
+    def cell(name: str, budget: int, metric: str) -> tuple[float, float]:
+        values = table[name][str(budget)][metric]
+        return values["mean"], values["std"]
+
+    if incumbent not in table or not {"100", "200"} <= set(table[incumbent]):
+        return {"note": f"the rule needs the incumbent {incumbent!r} at 100 and 200 labels"}
+    base200, base200_std = cell(incumbent, 200, "corr")
+    base100, _ = cell(incumbent, 100, "corr")
+    base_seconds = cell(incumbent, 200, "seconds")[0]
+    better, cheaper, sane = [], [], {}
+    for name in table:
+        if name == incumbent:
+            continue
+        mean200, std200 = cell(name, 200, "corr")
+        mean100, _ = cell(name, 100, "corr")
+        if mean200 - base200 > max(std200, base200_std) and mean100 >= base100:
+            better.append(name)
+        if mean100 >= base100 - 0.02 and mean200 >= base200 - 0.02 and cell(name, 200, "seconds")[0] < base_seconds:
+            cheaper.append(name)
+        sane[name] = all(
+            cell(name, b, "pair_accuracy")[0] >= cell(incumbent, b, "pair_accuracy")[0] - 0.02 for b in (100, 200)
+        )
+    return {
+        "incumbent": incumbent,
+        "replaces": better,
+        "chosen": max(better, key=lambda name: cell(name, 200, "corr")[0]) if better else None,
+        "cheaper_equals": cheaper,
+        "chosen_as_cheaper": min(cheaper, key=lambda name: cell(name, 200, "seconds")[0]) if cheaper else None,
+        "corr_at_200_minus_incumbent": {name: cell(name, 200, "corr")[0] - base200 for name in table},
+        "seconds_at_200_over_incumbent": {name: cell(name, 200, "seconds")[0] / base_seconds for name in table},
+        "pair_accuracy_sane": sane,
+    }
+
+
+def verdict_of(table: dict[str, Any], budgets: list[int], incumbent: str | None) -> tuple[str, dict[str, Any]]:
+    """The rule a screen is judged by and its verdict: against plain, or against an incumbent."""
+    if incumbent is None:
+        return DECISION_RULE, decide(table, budgets)
+    return INCUMBENT_RULE, decide_against(table, incumbent)
 
 
 # ----------------------------------------------------------------------------------------------------------- record
@@ -253,6 +323,7 @@ def screen_one(
     selection = config.pop("query_selection", "uniform")
     consistency = make_option("dynamics_consistency", config.pop("dynamics_consistency", False), DynamicsConsistency)
     synthetic_share = config.pop("synthetic_consistency", 0.0)
+    max_epochs = config.pop("max_epochs", reward_kwargs["reward_epochs"])
     if selection != "uniform" and not sessions:
         raise SystemExit("a query_selection configuration needs --sessions (queries chosen with the model so far)")
     k, per_session = reward_kwargs["segment_length"], reward_kwargs["queries_per_session"]
@@ -317,7 +388,7 @@ def screen_one(
             assert drawn is not None
             unlabeled = drawn.inputs
         _, accuracy, epochs = model.train_epochs(
-            dataset, reward_kwargs["reward_epochs"], reward_kwargs["reward_batch_size"], rng=train_rng,
+            dataset, max_epochs, reward_kwargs["reward_batch_size"], rng=train_rng,
             robust_labels=selections.get(id(model)), unlabeled=unlabeled, pseudo_labels=pseudo, **config,
         )  # fmt: skip
         return accuracy, epochs
@@ -470,7 +541,7 @@ def markdown(result: dict[str, Any]) -> str:
         ),
         "## Decision rule",
         "",
-        DECISION_RULE,
+        result.get("decision_rule", DECISION_RULE),
         "",
         "## corr(r̂, r) on held-out transitions",
         "",
@@ -532,7 +603,10 @@ def screen(args: argparse.Namespace) -> dict[str, Any]:
                 f" ({runs[name][seed][b]['seconds']:.0f} s)" for b in budgets), flush=True)  # fmt: skip
         # written after every seed: a screen stopped early keeps the seeds it finished
         table = summarize(runs, budgets)
+        rule, verdict = verdict_of(table, budgets, args.incumbent)
         result = {
+            "decision_rule": rule,
+            "verdict": verdict,
             "command": args.command,
             "seconds": time.time() - start,
             "budgets": budgets,
@@ -543,9 +617,8 @@ def screen(args: argparse.Namespace) -> dict[str, Any]:
                 name: {k: list(v) if isinstance(v, tuple) else v for k, v in c.items()} for name, c in configs.items()
             },
             "reward_kwargs": reward_kwargs,
-            "decision_rule": DECISION_RULE,
+            "incumbent": args.incumbent,
             "table": table,
-            "verdict": decide(table, budgets),
             "runs": runs,
             "data": {
                 "steps": n,
@@ -572,8 +645,8 @@ def merge(paths: list[Path], out: Path) -> dict[str, Any]:
     parts = [json.loads(path.read_text()) for path in paths]
     first = parts[0]
     for path, part in zip(paths, parts, strict=True):
-        for key in ("budgets", "sessions", "reward_kwargs", "n_test_pairs", "data"):
-            if part[key] != first[key]:
+        for key in ("budgets", "sessions", "reward_kwargs", "n_test_pairs", "data", "incumbent"):
+            if part.get(key) != first.get(key):
                 raise SystemExit(f"--merge: {path} differs from {paths[0]} in {key!r}")
     runs: dict[str, dict[int, dict[int, dict[str, float]]]] = {}
     configs: dict[str, Any] = {}
@@ -586,15 +659,17 @@ def merge(paths: list[Path], out: Path) -> dict[str, Any]:
                 runs[name][int(seed)] = {int(budget): cell for budget, cell in cells.items()}
     budgets = first["budgets"]
     table = summarize(runs, budgets)
+    rule, verdict = verdict_of(table, budgets, first.get("incumbent"))
     result = {
         **{key: first[key] for key in ("budgets", "sessions", "n_test_pairs", "reward_kwargs", "data", "system")},
         "command": " + ".join(part["command"] for part in parts),
         "seconds": sum(part["seconds"] for part in parts),
         "seeds": sorted({int(seed) for by_seed in runs.values() for seed in by_seed}),
         "configs": configs,
-        "decision_rule": DECISION_RULE,
+        "decision_rule": rule,
+        "incumbent": first.get("incumbent"),
         "table": table,
-        "verdict": decide(table, budgets),
+        "verdict": verdict,
         "runs": runs,
         "version": first["version"],
         "parts": [
@@ -623,6 +698,9 @@ def make_parser() -> argparse.ArgumentParser:
     parser.add_argument("--configs", nargs="+", default=list(CONFIGS), choices=list(CONFIGS))
     parser.add_argument("--sessions", action="store_true", help="train as PEBBLE does: one model, after each session (slower)")
     parser.add_argument("--out", type=Path, default=OUT, help="the result files' path, without suffix")
+    parser.add_argument(
+        "--incumbent", default=None, choices=list(CONFIGS), help="judge the screen against this configuration (INCUMBENT_RULE)"
+    )
     return parser
 
 

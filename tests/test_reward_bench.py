@@ -94,6 +94,31 @@ def test_decision_rule_picks_the_finalist_and_measures_the_gap():
     assert verdict["flipped_reads_bad"]
 
 
+def test_incumbent_rule_keeps_what_is_not_better_and_finds_the_cheaper_equal():
+    def cell(corr, seconds, std=0.02, accuracy=0.75):
+        return {
+            "corr": {"mean": corr, "std": std},
+            "pair_accuracy": {"mean": accuracy, "std": 0.01},
+            "seconds": {"mean": seconds, "std": 1.0},
+        }
+
+    table = {
+        "incumbent": {"100": cell(0.22, 10), "200": cell(0.31, 20)},
+        "better": {"100": cell(0.23, 40), "200": cell(0.36, 50)},
+        "noisy": {"100": cell(0.25, 40), "200": cell(0.36, 50, std=0.08)},  # within its spread: not better
+        "worse at 100": {"100": cell(0.18, 40), "200": cell(0.40, 50)},
+        "cheap": {"100": cell(0.21, 4), "200": cell(0.30, 8)},
+        "cheap but worse": {"100": cell(0.15, 2), "200": cell(0.25, 3)},
+    }
+    verdict = reward_bench.decide_against(table, "incumbent")
+    assert verdict["replaces"] == ["better"] and verdict["chosen"] == "better"
+    assert verdict["cheaper_equals"] == ["cheap"] and verdict["chosen_as_cheaper"] == "cheap"
+    rule, same = reward_bench.verdict_of(table, [100, 200], "incumbent")
+    assert rule == reward_bench.INCUMBENT_RULE and same == verdict
+    # nothing better than itself: the incumbent stays
+    assert reward_bench.decide_against({"incumbent": table["incumbent"]}, "incumbent")["chosen"] is None
+
+
 def test_merge_joins_screens_made_apart_and_refuses_a_seed_twice(tmp_path):
     th.set_num_threads(1)
     steps = recorded_steps()
