@@ -23,7 +23,8 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
 
 Each run is ``benchmarks/run.py``'s: its folder is named by ``run_name()`` and a run whose ``result.json`` exists is
 skipped, so a grid cut off half way picks up where it stopped, and the committed runs of a grid count as done. Seeds
-are outermost: every cell gets its first seed before any gets its second.
+are outermost: every cell gets its first seed before any gets its second. A run folder being run holds a ``claim``
+(the grid process's id), so a second ``grid.py`` started on the same grid leaves those runs and adds its workers.
 """
 
 import argparse

@@ -48,6 +48,8 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 ROOT = Path(__file__).resolve().parent.parent
 DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "walker-run", "finger-spin"}
 ALGOS = ("pride", "pebble", "sac")
+#: the file in a run folder that names the grid process running it (``claim_run``)
+CLAIM = "claim"
 
 
 def env_id(task: str) -> str:
@@ -427,10 +429,51 @@ def needed_runs(spec: dict[str, Any], out: Path) -> list[Path]:
     return [Path(path).parent for path in paths if Path(path).parent.parent == out]
 
 
+def process_alive(pid: int) -> bool:
+    """Whether a process of this id runs on this machine."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # it runs, as another user
+        return True
+    return True
+
+
+def claim_run(folder: Path) -> bool:
+    """
+    Claim a run folder for this process, so that another grid process on the same folders leaves it (its ``claim``
+    file holds the process id; the claim of a process that is gone is taken over): False if a live process holds it.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / CLAIM
+    for _ in range(2):
+        try:
+            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            text = path.read_text().strip()
+            if not text.isdigit() or process_alive(int(text)):  # an empty claim is one being written
+                return int(text) == os.getpid() if text.isdigit() else False
+            path.unlink(missing_ok=True)
+            continue
+        with os.fdopen(fd, "w") as file:
+            file.write(str(os.getpid()))
+        return True
+    return False
+
+
+def claimed_elsewhere(folder: Path) -> bool:
+    """Whether another live process holds the run folder's claim."""
+    path = folder / CLAIM
+    text = path.read_text().strip() if path.exists() else ""
+    return text.isdigit() and int(text) != os.getpid() and process_alive(int(text))
+
+
 def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
     """
     Run every spec whose folder under ``out`` has no ``result.json`` yet, ``jobs`` at a time, each in its own process
-    (this script with ``--worker``); return the number of runs that failed.
+    (this script with ``--worker``); return the number of runs that failed. A run another grid process has claimed
+    (``claim_run``) is left to it, so that a second process on the same grid adds workers to it.
     """
     todo = [spec for spec in specs if not (out / run_name(spec) / "result.json").exists()]
     total = len(specs)
@@ -440,7 +483,8 @@ def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
     while todo or running:
         # a run that starts from another run's journal or r̂ waits until that run is done
         ready = [spec for spec in todo if all((folder / "result.json").exists() for folder in needed_runs(spec, out))]
-        if todo and not ready and not running:  # what they start from failed, or is no run of this grid
+        waiting_elsewhere = any(claimed_elsewhere(folder) for spec in todo for folder in needed_runs(spec, out))
+        if todo and not ready and not running and not waiting_elsewhere:  # what they start from failed
             for spec in todo:
                 missing = [folder.name for folder in needed_runs(spec, out) if not (folder / "result.json").exists()]
                 print(f"{run_name(spec)}: NOT RUN, it starts from runs without a result: {missing}", flush=True)
@@ -448,7 +492,12 @@ def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
         while ready and len(running) < jobs:
             spec = ready.pop(0)
             todo.remove(spec)
-            (out / run_name(spec)).mkdir(parents=True, exist_ok=True)
+            if not claim_run(out / run_name(spec)):
+                print(f"left {run_name(spec)} to the grid process that runs it", flush=True)
+                continue
+            if (out / run_name(spec) / "result.json").exists():  # done by another process since this one looked
+                (out / run_name(spec) / CLAIM).unlink(missing_ok=True)
+                continue
             with open(out / run_name(spec) / "log.txt", "w") as log:
                 command = [sys.executable, __file__, "--out", str(out), "--worker", json.dumps(spec)]
                 running.append((subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), spec, time.time()))
@@ -458,6 +507,7 @@ def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
             if process.poll() is None:
                 continue
             running.remove((process, spec, started))
+            (out / run_name(spec) / CLAIM).unlink(missing_ok=True)
             finished += 1
             result_path = out / run_name(spec) / "result.json"
             if process.returncode == 0 and result_path.exists():

@@ -3,6 +3,7 @@ otherwise; pooled comparisons do not depend on the order of the folders."""
 
 import importlib.util
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -401,6 +402,48 @@ def test_a_grid_runs_only_the_runs_without_a_result(grid, tmp_path, monkeypatch)
     started.clear()
     grid.main([str(path), "--out", str(out)])
     assert started == []
+
+
+def test_a_second_grid_process_leaves_the_runs_another_live_process_claimed(grid, tmp_path, monkeypatch):
+    """Two grid processes on one grid share its runs: a live claim is left alone, a dead process's claim taken over."""
+    import subprocess
+
+    path = write_grid(tmp_path, "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-2, feedback: [400]}\n")
+    out = tmp_path / "runs"
+    alive = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()
+    try:
+        for seed, holder in ((0, alive), (1, gone)):
+            (out / f"pebble_walker-walk_s{seed}_fb400").mkdir(parents=True)
+            (out / f"pebble_walker-walk_s{seed}_fb400" / grid.run.CLAIM).write_text(str(holder.pid))
+        started = []
+
+        class FakeProcess:
+            """Stands for a worker process: writes the run's result at once."""
+
+            returncode = 0
+
+            def __init__(self, command, **_):
+                spec = json.loads(command[command.index("--worker") + 1])
+                name = grid.run.run_name(spec)
+                started.append(name)
+                assert (out / name / grid.run.CLAIM).read_text() == str(os.getpid())  # held while it runs
+                (out / name / "result.json").write_text(json.dumps({"final_return": 1.0, "final_success": None}))
+
+            def poll(self):
+                return 0
+
+        monkeypatch.setattr(grid.run.subprocess, "Popen", FakeProcess)
+        monkeypatch.setattr(grid.run.time, "sleep", lambda seconds: None)
+        grid.main([str(path), "--out", str(out), "--jobs", "2"])
+        assert started == ["pebble_walker-walk_s1_fb400", "pebble_walker-walk_s2_fb400"]
+        assert not (out / "pebble_walker-walk_s1_fb400" / grid.run.CLAIM).exists()  # released when done
+        assert (out / "pebble_walker-walk_s0_fb400" / grid.run.CLAIM).read_text() == str(alive.pid)
+    finally:
+        alive.kill()
+        alive.wait()
+    assert grid.run.claim_run(out / "pebble_walker-walk_s0_fb400")  # its process is gone: taken over
 
 
 def test_a_run_that_starts_from_another_waits_for_it_and_is_not_run_when_it_failed(grid, tmp_path, monkeypatch):
