@@ -23,7 +23,7 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
 
 Each run is ``benchmarks/run.py``'s: its folder is named by ``run_name()`` and a run whose ``result.json`` exists is
 skipped, so a grid cut off half way picks up where it stopped, and the committed runs of a grid count as done. Seeds
-are outermost: every cell gets its first seed before any gets its second. A run folder being run holds a ``claim``
+are outermost, across blocks too: every cell gets its first seed before any gets its second. A run folder being run holds a ``claim``
 (the grid process's id), so a second ``grid.py`` started on the same grid leaves those runs and adds its workers.
 """
 
@@ -113,7 +113,8 @@ def configuration(label: str, variants: dict[str, dict[str, Any]], where: str) -
 def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = None) -> list[dict[str, Any]]:
     """
     The run specs of a grid (``run.py``'s worker input), each with ``configuration`` (its label) and ``variant``
-    added; a run that two blocks both make (SAC ignores the budget, PEBBLE the ratio) is listed once.
+    added, in the order they run: by seed, then block by block; a run that two blocks both make (SAC ignores the
+    budget, PEBBLE the ratio) is listed once.
     """
     tier = grid.get("tier", "cpu")
     variants = run.load_variants(tier) if variants is None else variants
@@ -141,7 +142,8 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
                 if run.run_name(spec) not in seen:
                     seen.add(run.run_name(spec))
                     specs.append(spec)
-    return specs
+    # seeds outermost across the blocks too: the arms of a comparison, in blocks of their own, interleave by seed
+    return sorted(specs, key=lambda spec: spec["seed"])
 
 
 def check(specs: list[dict[str, Any]]) -> None:

@@ -216,6 +216,20 @@ runs:
     assert specs[3]["overrides"] == {"synthetic_on_top": True}
 
 
+def test_the_arms_of_a_grid_in_blocks_of_their_own_interleave_by_seed(grid, tmp_path):
+    text = (
+        "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-1, feedback: [400]}\n"
+        "  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-1, feedback: [200]}\n"
+    )
+    specs = grid.expand(grid.load_grid(write_grid(tmp_path, text)))
+    assert [grid.run.run_name(spec) for spec in specs] == [
+        "pebble_walker-walk_s0_fb400",
+        "pebble_walker-walk_s0_fb200",
+        "pebble_walker-walk_s1_fb400",
+        "pebble_walker-walk_s1_fb200",
+    ]
+
+
 def test_budget_and_ratio_left_out_of_a_grid_are_each_tasks_yaml_values(grid, tmp_path):
     path = write_grid(
         tmp_path, "runs:\n  - {configurations: [pride, pebble], tasks: [cheetah-run, button-press-v3], seeds: [3]}\n"
