@@ -387,30 +387,35 @@ def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(gr
     assert not mismatches, "\n".join(mismatches[:20])
 
 
-def test_a_grid_runs_only_the_runs_without_a_result(grid, tmp_path, monkeypatch):
-    """Resumable: a run folder with result.json is skipped; the others start, one process each."""
-    path = write_grid(tmp_path, "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-2, feedback: [400]}\n")
-    out = tmp_path / "runs"
-    (out / "pebble_walker-walk_s1_fb400").mkdir(parents=True)
-    (out / "pebble_walker-walk_s1_fb400" / "result.json").write_text("{}")
-    started = []
+def instant_workers(grid, monkeypatch, out: Path, check=None) -> list[str]:
+    """Worker processes replaced by ones that write their run's result at once; returns the names started, in order."""
+    started: list[str] = []
 
     class FakeProcess:
-        """Stands for a worker process: writes the run's result at once."""
-
         returncode = 0
 
         def __init__(self, command, **_):
-            spec = json.loads(command[command.index("--worker") + 1])
-            started.append(grid.run.run_name(spec))
-            result = {"final_return": 1.0, "final_success": None}
-            (out / grid.run.run_name(spec) / "result.json").write_text(json.dumps(result))
+            name = grid.run.run_name(json.loads(command[command.index("--worker") + 1]))
+            started.append(name)
+            if check is not None:
+                check(name)
+            (out / name / "result.json").write_text(json.dumps({"final_return": 1.0, "final_success": None}))
 
         def poll(self):
             return 0
 
     monkeypatch.setattr(grid.run.subprocess, "Popen", FakeProcess)
     monkeypatch.setattr(grid.run.time, "sleep", lambda seconds: None)
+    return started
+
+
+def test_a_grid_runs_only_the_runs_without_a_result(grid, tmp_path, monkeypatch):
+    """Resumable: a run folder with result.json is skipped; the others start, one process each."""
+    path = write_grid(tmp_path, "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-2, feedback: [400]}\n")
+    out = tmp_path / "runs"
+    (out / "pebble_walker-walk_s1_fb400").mkdir(parents=True)
+    (out / "pebble_walker-walk_s1_fb400" / "result.json").write_text("{}")
+    started = instant_workers(grid, monkeypatch, out)
     grid.main([str(path), "--out", str(out), "--jobs", "2"])
     assert started == ["pebble_walker-walk_s0_fb400", "pebble_walker-walk_s2_fb400"]
     started.clear()
@@ -431,25 +436,11 @@ def test_a_second_grid_process_leaves_the_runs_another_live_process_claimed(grid
         for seed, holder in ((0, alive), (1, gone)):
             (out / f"pebble_walker-walk_s{seed}_fb400").mkdir(parents=True)
             (out / f"pebble_walker-walk_s{seed}_fb400" / grid.run.CLAIM).write_text(str(holder.pid))
-        started = []
 
-        class FakeProcess:
-            """Stands for a worker process: writes the run's result at once."""
+        def held_while_it_runs(name: str) -> None:
+            assert (out / name / grid.run.CLAIM).read_text() == str(os.getpid())
 
-            returncode = 0
-
-            def __init__(self, command, **_):
-                spec = json.loads(command[command.index("--worker") + 1])
-                name = grid.run.run_name(spec)
-                started.append(name)
-                assert (out / name / grid.run.CLAIM).read_text() == str(os.getpid())  # held while it runs
-                (out / name / "result.json").write_text(json.dumps({"final_return": 1.0, "final_success": None}))
-
-            def poll(self):
-                return 0
-
-        monkeypatch.setattr(grid.run.subprocess, "Popen", FakeProcess)
-        monkeypatch.setattr(grid.run.time, "sleep", lambda seconds: None)
+        started = instant_workers(grid, monkeypatch, out, held_while_it_runs)
         grid.main([str(path), "--out", str(out), "--jobs", "2"])
         assert started == ["pebble_walker-walk_s1_fb400", "pebble_walker-walk_s2_fb400"]
         assert not (out / "pebble_walker-walk_s1_fb400" / grid.run.CLAIM).exists()  # released when done
