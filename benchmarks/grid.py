@@ -14,6 +14,8 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
     timesteps: 0                       # optional: 0 keeps each task's n_timesteps
     summary: true                      # optional: its rows go into the README's summary table
     comparisons: [[rows_on_top, rows_in_place]]   # optional: P(X > Y) of two configurations of a block's task
+    pride_settings: {feedback_schedule: constant}  # optional: every PRIDE run's arguments on top of the tier's YAML,
+                                                   # beneath its variant's (a grid made before a default changed)
     runs:
       - configurations: [pebble, rows_in_place]   # a variant label of hyperparams/<tier>/variants.yml or an algo
         tasks: [walker-walk]
@@ -38,7 +40,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import run
 
-GRID_KEYS = {"description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "runs"}
+GRID_KEYS = {
+    "description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "pride_settings", "runs"
+}  # fmt: skip
 BLOCK_KEYS = {"configurations", "tasks", "seeds", "feedback", "ratios"}
 
 
@@ -126,6 +130,8 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
     specs, seen = [], set()
     for block, where, configurations, seeds in blocks:
         for seed, task, (label, config) in itertools.product(seeds, as_list(block["tasks"], where, "tasks"), configurations):
+            if config["algo"] == "pride" and grid.get("pride_settings"):
+                config = {**config, "overrides": run.merge(grid["pride_settings"], config["overrides"])}
             needs_yaml = config["algo"] != "sac" and ("feedback" not in block or "ratios" not in block)
             _, kwargs = run.yaml_entry(tier, config["algo"], task) if needs_yaml else (0, {})
             feedbacks = as_list(block["feedback"], where, "feedback") if "feedback" in block else [kwargs.get("max_feedback")]

@@ -207,10 +207,20 @@ def uncounted_runs(grid_files: list[Path], runs_folder: Path | None = None) -> l
     return sorted(folder for folder in found if folder.is_dir() and folder.resolve() not in counted)
 
 
+#: the rows run as references beside the arms they judge, on their code version: preferred to plain PEBBLE and SAC rows
+REFERENCES = {"pebble": "pebble_reference", "sac": "sac_reference"}
+
+
 def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
-    """Plain PEBBLE at the task's largest budget: what every configuration of the task is compared with."""
-    pebbles = [key for key in rows if key[0] == task and key[1] == "pebble"]
-    return max(pebbles, key=lambda key: key[2]) if pebbles else None
+    """
+    Plain PEBBLE at the task's largest budget: what every configuration of the task is compared with; the PEBBLE run
+    beside the arms it judges (``pebble_reference``) where the task has one.
+    """
+    for label in (REFERENCES["pebble"], "pebble"):
+        pebbles = [key for key in rows if key[0] == task and key[1] == label]
+        if pebbles:
+            return max(pebbles, key=lambda key: key[2])
+    return None
 
 
 def last_correlations(runs: list[dict]) -> np.ndarray | None:
@@ -236,7 +246,10 @@ def corr_text(row: dict) -> str:
 
 
 def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | None:
-    """SAC on the true reward for the task, with runs of this length: the ceiling each row is a share of."""
+    """
+    SAC on the true reward for the task, with runs of this length: the ceiling each row is a share of; the SAC run
+    beside the arms it judges (``sac_reference``) where the task has one.
+    """
     sacs = [
         key
         for key, row in rows.items()
@@ -245,6 +258,7 @@ def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | N
         and row["specs"][0]["timesteps"] == timesteps
         and not row["specs"][0].get("learned_reward")  # SAC on a learned r̂ is a row, not the ceiling
     ]
+    sacs.sort(key=lambda key: key[1] != REFERENCES["sac"])  # stable: otherwise the first in the grid files' order
     return sacs[0] if sacs else None
 
 

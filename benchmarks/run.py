@@ -182,6 +182,10 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
 
         parameters = inspect.signature(QuerySampler.__init__).parameters.values()
         defaults["reward_kwargs"] = RewardLearner.settings()
+        if algo == "pride":  # PRIDE's reward learning beneath the given reward_kwargs
+            from sb3_pride.pride.recipes import PRIDE_REWARD_DEFAULTS
+
+            defaults["reward_kwargs"].update(PRIDE_REWARD_DEFAULTS)
         defaults["query_kwargs"] = {
             p.name: p.default for p in parameters if p.default is not p.empty and p.name != "selection"
         }

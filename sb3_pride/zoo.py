@@ -80,9 +80,11 @@ def sample_pebble_params(trial: Any, n_actions: int, n_envs: int, additional_arg
 
 
 def sample_pride_params(trial: Any, n_actions: int, n_envs: int, additional_args: dict) -> dict[str, Any]:
-    """Optuna sampler for PRIDE: PEBBLE's knobs plus u, R and the diffusion budget."""
+    """Optuna sampler for PRIDE: PEBBLE's knobs and the label schedule (K counts only with "constant"), plus u, R and
+    the diffusion budget."""
     return {
         **sample_pebble_params(trial, n_actions, n_envs, additional_args),
+        "feedback_schedule": trial.suggest_categorical("feedback_schedule", ["front_loaded", "constant"]),
         "synthetic_ratio": trial.suggest_float("synthetic_ratio", 0.1, 0.9),
         # on top of batch_size real rows, a minibatch holds batch_size / (1 - u) rows
         "synthetic_on_top": trial.suggest_categorical("synthetic_on_top", [False, True]),

@@ -39,7 +39,7 @@ def names(run, *argv: str) -> list[str]:
 @pytest.mark.parametrize("task", ["walker-walk", "cheetah-run", "button-press-v3"])
 def test_budget_and_ratio_default_to_each_tasks_yaml_entry(run, task):
     """Without --feedback and --ratios, every task runs with its own YAML's max_feedback and synthetic_ratio (u = 0.25
-    on cheetah-run, 2000 queries on Meta-World), not with one value for all tasks."""
+    on every task, 1200 queries for PEBBLE on Meta-World), not with one value for all tasks."""
     _, pride = model_kwargs(hyperparams_dir() / "cpu" / "pride.yml", run.env_id(task))
     _, pebble = model_kwargs(hyperparams_dir() / "cpu" / "pebble.yml", run.env_id(task))
     assert names(run, "--tasks", task, "--algos", "pride", "pebble", "sac") == [
@@ -236,10 +236,10 @@ def test_budget_and_ratio_left_out_of_a_grid_are_each_tasks_yaml_values(grid, tm
     )
     names = [grid.run.run_name(spec) for spec in grid.expand(grid.load_grid(path))]
     assert names == [
-        "pride_cheetah-run_s3_fb400_u0.25",
+        "pride_cheetah-run_s3_fb200_u0.25",
         "pebble_cheetah-run_s3_fb400",
-        "pride_button-press-v3_s3_fb2000_u0.25",
-        "pebble_button-press-v3_s3_fb2000",
+        "pride_button-press-v3_s3_fb600_u0.25",
+        "pebble_button-press-v3_s3_fb1200",
     ]
 
 
@@ -321,10 +321,20 @@ def flat_kwargs(kwargs: dict) -> dict:
 DEFAULTS_BEFORE_RECORDED: dict[str, dict] = {}
 
 
+def as_before_it_existed(run, algo: str) -> dict:
+    """How a PRIDE run that recorded none of these defaults ran: PEBBLE's label schedule and reward learning, the
+    generator's 4000 diffusion steps per retrain."""
+    if algo != "pride":
+        return {}
+    generator = {**run.algorithm_defaults("pride")["generator_kwargs"], "train_steps": 4000}
+    reward = run.algorithm_defaults("pebble")["reward_kwargs"]
+    return {"feedback_schedule": "constant", "reward_kwargs": reward, "generator_kwargs": generator}
+
+
 def recorded_defaults(run, settings: dict) -> dict:
     """The defaults a committed run was made with, for today's arguments: those it recorded, else the older values
     above; today's for an argument it knew nothing of."""
-    today = run.algorithm_defaults(settings["algo"])
+    today = {**run.algorithm_defaults(settings["algo"]), **as_before_it_existed(run, settings["algo"])}
     if "defaults" in settings:
         # a structured setting recorded as None (its parts' defaults not spelled out yet) ran with its parts' defaults
         recorded = {k: v for k, v in settings["defaults"].items() if k in today and not (k in STRUCTURED and v is None)}
@@ -602,14 +612,44 @@ def test_results_json_holds_every_run_of_the_grid_files(page):
 
 
 def test_each_task_opens_with_its_pebble_reference(page):
-    """Every configuration of a task is compared with plain PEBBLE at the task's largest budget; that row comes first
-    in the tables, whichever grid file sorts first."""
+    """Every configuration of a task is compared with plain PEBBLE at the task's largest budget (the one run beside
+    PRIDE's defaults where the task has it); that row comes first in the tables, whichever grid file sorts first."""
     data = json.loads(page.RESULTS.read_text())
     for task, rows in data["tasks"].items():
-        pebbles = [row for row in rows if row["configuration"] == "pebble"]
-        if pebbles:
-            assert rows[0]["configuration"] == "pebble", task
-            assert rows[0]["feedback"] == max(row["feedback"] for row in pebbles), task
+        for label in ("pebble_reference", "pebble"):
+            pebbles = [row for row in rows if row["configuration"] == label]
+            if pebbles:
+                assert rows[0]["configuration"] == label, task
+                assert rows[0]["feedback"] == max(row["feedback"] for row in pebbles), task
+                break
+
+
+def test_the_references_run_beside_the_arms_come_before_older_ones(page, tmp_path):
+    """A task with PEBBLE and SAC run beside PRIDE's defaults (pebble_reference, sac_reference) compares every row with
+    those and reads each as a share of that SAC, not of the older plain rows, whichever grid file sorts first."""
+    grids = []
+    for name, labels, pebble_return, sac_return in (("a_old", "[pebble, sac]", 300.0, 600.0),
+                                                    ("b_new", "[pebble_reference, sac_reference]", 200.0, 400.0)):  # fmt: skip
+        folder = tmp_path / name
+        folder.mkdir()
+        block = f"{{configurations: {labels}, tasks: [walker-walk], seeds: 0-1, feedback: [400]}}"
+        grids.append(write_grid(folder, f"out: {folder / 'runs'}\nruns:\n  - {block}\n"))
+        tag = "_reference" if name == "b_new" else ""
+        for seed in (0, 1):
+            write_coded_run(folder / "runs", "pebble", seed, pebble_return, "a")
+            run_name = f"sac_walker-walk_s{seed}{tag}"
+            (folder / "runs" / run_name).mkdir(parents=True)
+            settings = {"algo": "sac", "task": "walker-walk", "seed": seed, "feedback": None, "ratio": None,
+                        "tag": tag.strip("_")}  # fmt: skip
+            (folder / "runs" / run_name / "settings.json").write_text(json.dumps(settings))
+            (folder / "runs" / run_name / "curve.csv").write_text("step,true_return,success\n" + "".join(
+                f"{step},{sac_return},\n" for step in (5000, 10000, 15000)))  # fmt: skip
+            (folder / "runs" / run_name / "result.json").write_text(json.dumps({"final_return": sac_return}))
+    rows = page.recount(grids, None)["tasks"]["walker-walk"]
+    assert rows[0]["configuration"] == "pebble_reference"
+    by_label = {row["configuration"]: row for row in rows}
+    assert by_label["pebble"]["against_pebble"]["y"].startswith("pebble_reference")
+    assert by_label["pebble_reference"]["share_of_ceiling"] == 0.5 and by_label["pebble"]["share_of_ceiling"] == 0.75
 
 
 def test_the_readme_summary_needs_its_markers(page):

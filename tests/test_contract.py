@@ -37,7 +37,7 @@ def test_float64_mujoco_env_through_several_sessions(tiny_kwargs, algo):
     """gymnasium's MuJoCo envs observe float64: the query selection and the diffusion must take it."""
     env = gym.make("HalfCheetah-v5")
     assert env.observation_space.dtype == np.float64
-    tiny_kwargs.update(feedback_interval=100, max_feedback=40, queries_per_session=10)
+    tiny_kwargs.update(feedback_interval=100, max_feedback=40, queries_per_session=10, feedback_schedule="constant")
     extra = TINY_DIFFUSION if algo is PRIDE else {}
     model = algo("MlpPolicy", env, seed=0, **tiny_kwargs, **extra)
     model.learn(650)

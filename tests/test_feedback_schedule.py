@@ -3,6 +3,7 @@
 import warnings
 
 import pytest
+import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
 
 from sb3_pride import PEBBLE
@@ -10,21 +11,47 @@ from sb3_pride.pebble.feedback import FeedbackSchedule
 
 
 def test_each_schedule_sizes_its_sessions_as_b_pref_does():
-    constant, shrinking, growing = (FeedbackSchedule(name, 50) for name in ("constant", "shrinking", "growing"))
+    constant, shrinking, growing = (FeedbackSchedule(name, 50, 400) for name in ("constant", "shrinking", "growing"))
     assert [constant.size(i, step, 50_000) for i, step in ((1, 5000), (2, 10_000))] == [50, 50]
     # B-Pref's reward_schedule 1 and 2: int(K (T - t) / T) and int(K T / (T - t + 1))
     assert [shrinking.size(1, step, 50_000) for step in (5000, 25_000, 49_999, 50_000)] == [45, 25, 1, 1]
     assert [growing.size(1, step, 50_000) for step in (0, 25_000, 45_000)] == [49, 99, 499]
-    listed = FeedbackSchedule([100, 30], 50)
+    listed = FeedbackSchedule([100, 30], 50, 400)
     assert [listed.size(i, 0, 50_000) for i in (1, 2, 3, 4)] == [100, 30, 50, 50]
 
 
 def test_a_shrinking_schedule_spreads_half_the_labels_with_a_thinning_tail():
     """200 labels, K = 50 every 5k steps from 5k in a 50k-step run: asked until 35k instead of 20k."""
-    plan = FeedbackSchedule("shrinking", 50).plan(1, 5000, 5000, 50_000, 200)
+    plan = FeedbackSchedule("shrinking", 50, 200).plan(1, 5000, 5000, 50_000, 200)
     assert plan == [(5000, 45), (10_000, 40), (15_000, 35), (20_000, 30), (25_000, 25), (30_000, 20), (35_000, 5)]
-    constant = FeedbackSchedule("constant", 50).plan(1, 5000, 5000, 50_000, 200)
+    constant = FeedbackSchedule("constant", 50, 200).plan(1, 5000, 5000, 50_000, 200)
     assert constant[-1] == (20_000, 50) and sum(n for _, n in constant) == 200
+
+
+def test_front_loaded_asks_half_the_budget_first_and_the_rest_in_four_sessions():
+    """PRIDE's CPU tier, 200 labels every 5k steps from 5k: 100 at once, then four sessions of 25, whatever K is."""
+    plan = FeedbackSchedule("front_loaded", 50, 200).plan(1, 5000, 5000, 50_000, 200)
+    assert plan == [(5000, 100), (10_000, 25), (15_000, 25), (20_000, 25), (25_000, 25)]
+    assert plan == FeedbackSchedule([100], 25, 200).plan(1, 5000, 5000, 50_000, 200)
+    # any budget: half of it (rounded up) first, the rest in four sessions (rounded up, the last cut to the budget)
+    assert [n for _, n in FeedbackSchedule("front_loaded", 50, 1200).plan(1, 0, 1, 10, 1200)] == [600, 150, 150, 150, 150]
+    assert [n for _, n in FeedbackSchedule("front_loaded", 50, 101).plan(1, 0, 1, 10, 101)] == [51, 13, 13, 13, 11]
+    assert [n for _, n in FeedbackSchedule("front_loaded", 50, 1).plan(1, 0, 1, 10, 1)] == [1]
+
+
+@pytest.mark.slow
+def test_front_loaded_trains_exactly_as_the_list_it_names(tiny_kwargs):
+    """``"front_loaded"`` at a budget of 60 is the list [30, 8, 8, 8]: the same sessions, the same model."""
+    models, sizes = [], []
+    for schedule in ("front_loaded", [30, 8, 8, 8]):  # each made and trained in turn: SB3 seeds torch when a model is made
+        sizes.append(SessionSizes())
+        models.append(PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule=schedule, **tiny_kwargs))
+        models[-1].learn(1600, callback=sizes[-1])
+    named, listed = models
+    assert sizes[0].sizes == sizes[1].sizes == [30, 8, 8, 8, 6]
+    for a, b in zip(named.policy.parameters(), listed.policy.parameters(), strict=True):
+        assert th.equal(a, b)
+    assert named.preferences.labels.tolist() == listed.preferences.labels.tolist()
 
 
 class SessionSizes(BaseCallback):
@@ -64,21 +91,24 @@ def test_a_schedule_that_cannot_ask_the_budget_within_the_run_is_refused_before_
         model.learn(1500)
     assert model.num_timesteps == 0 and model.feedback_asked == 0 and not journal.exists()
     # long enough: sessions at 300, 600, 900 and 1200 ask 19 + 18 + 17 + 6 of a 6000-step run
-    assert sum(n for _, n in FeedbackSchedule("shrinking", 20).plan(1, 300, 300, 6000, 60)) == 60
+    assert sum(n for _, n in FeedbackSchedule("shrinking", 20, 60).plan(1, 300, 300, 6000, 60)) == 60
     model.learn(1300, reset_num_timesteps=False)  # a run in parts is not checked: it asks as its schedule says
     assert model.feedback_asked == 15 + 10 + 6 + 1  # int(20 (1300 - t) / 1300) at t = 300, 600, 900, 1200
 
 
 @pytest.mark.slow
-def test_the_constant_schedule_warns_when_the_run_ends_before_its_budget(tiny_kwargs):
-    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
-    with pytest.warns(UserWarning, match="the budget cannot be asked within the run: 60 .* ask 40"):
+@pytest.mark.parametrize("schedule", ["constant", "front_loaded"])
+def test_the_default_schedules_warn_when_the_run_ends_before_its_budget(tiny_kwargs, schedule):
+    """PEBBLE's and PRIDE's defaults: a short run (a smoke test) asks what it can; front_loaded asks 30 + 8."""
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule=schedule, **tiny_kwargs)
+    asked, then = (40, 60) if schedule == "constant" else (38, 46)
+    with pytest.warns(UserWarning, match=f"the budget cannot be asked within the run: 60 .* ask {asked}"):
         model.learn(700)  # sessions at 300 and 600 only
-    assert model.feedback_asked == 40
+    assert model.feedback_asked == asked
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a run in parts is not checked: its later parts may ask the rest
         model.learn(300, reset_num_timesteps=False)
-    assert model.feedback_asked == 60
+    assert model.feedback_asked == then  # the session at 900
 
 
 @pytest.mark.parametrize("schedule", ["linear", [], [10, 0], [10, 2.5], [True], None])

@@ -131,7 +131,7 @@ model.learn(700, callback=CheckpointCallback(150, "{folder}", save_replay_buffer
 @pytest.mark.parametrize("algo", [PEBBLE, PRIDE])
 def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tmp_path, algo):
     tiny_kwargs.update(learning_starts=100, unsupervised_steps=100, feedback_interval=100, max_feedback=50,
-                       queries_per_session=10)  # fmt: skip
+                       queries_per_session=10, feedback_schedule="constant")  # fmt: skip
     if algo is PRIDE:
         tiny_kwargs.update(TINY_DIFFUSION)
     script = WORKER.format(algo=algo.__name__, folder=tmp_path, kwargs=repr(tiny_kwargs))

@@ -7,11 +7,16 @@ from stable_baselines3.common.env_util import make_vec_env
 
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
 from sb3_pride.common.utils import merge_kwargs
+from sb3_pride.pride import PAPER_RECIPE, PRIDE_REWARD_DEFAULTS
 
 # the paper's mixing (PRIDE()'s defaults delay it to step 10k): synthetic data from the first reward model on, every
 # sample kept, fitted on all real transitions
 PAPER_MIXING = dict(
-    synthetic_on_top=False, synthetic_start=0, synthetic_ramp=0, generator_kwargs=dict(window=None, keep_quantile=1.0)
+    synthetic_ratio=0.5,
+    synthetic_on_top=False,
+    synthetic_start=0,
+    synthetic_ramp=0,
+    generator_kwargs=dict(window=None, keep_quantile=1.0),
 )
 #: PRIDE with a diffusion model small enough for tests
 TINY_DIFFUSION = merge_kwargs(
@@ -27,6 +32,15 @@ TINY_DIFFUSION = merge_kwargs(
 def tiny_pride(**changes):
     """``TINY_DIFFUSION`` with ``changes`` (``generator_kwargs`` merged, not replaced)."""
     return merge_kwargs(TINY_DIFFUSION, changes)
+
+
+def with_prides_reward_learning(kwargs):
+    """PEBBLE's ``kwargs`` with PRIDE's label schedule and reward learning (REED's consistency), PRIDE's defaults."""
+    return {
+        **kwargs,
+        "feedback_schedule": "front_loaded",
+        "reward_kwargs": {**kwargs["reward_kwargs"], **PRIDE_REWARD_DEFAULTS},
+    }
 
 
 def marked_dual_buffer(n_envs=2, ratio=0.25):
@@ -114,10 +128,26 @@ def test_synthetic_rewards_follow_each_relabel(tiny_kwargs):
     )
 
 
+def test_prides_defaults_are_pebbles_with_half_the_labels_front_loaded_and_reeds_consistency():
+    pride, pebble = PRIDE("MlpPolicy", "Pendulum-v1"), PEBBLE("MlpPolicy", "Pendulum-v1")
+    assert 2 * pride.max_feedback == pebble.max_feedback
+    assert (pride.feedback_schedule, pebble.feedback_schedule) == ("front_loaded", "constant")
+    assert pride.reward_kwargs == PRIDE_REWARD_DEFAULTS and pride.reward_learner.consistency.settings.epochs == 5
+    assert pebble.reward_learner.consistency is None
+    assert pride.synthetic_ratio == 0.25 and pride.generator.diffusion_options["train_steps"] == 2000
+    # a setting given goes on top of PRIDE's reward learning; the paper's recipe is PEBBLE's reward learning
+    given = PRIDE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(epochs=10))
+    assert given.reward_kwargs == {**PRIDE_REWARD_DEFAULTS, "epochs": 10}
+    paper = PRIDE("MlpPolicy", "Pendulum-v1", **PAPER_RECIPE)
+    assert paper.reward_learner.consistency is None and paper.feedback_schedule == "constant"
+    assert paper.synthetic_ratio == 0.5
+
+
 @pytest.mark.slow
-def test_ratio_zero_trains_exactly_like_pebble(tiny_kwargs):
-    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=3, **tiny_kwargs).learn(700)
-    pride = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, synthetic_ratio=0.0, **tiny_kwargs, **TINY_DIFFUSION).learn(700)
+def test_ratio_zero_trains_exactly_like_pebble_with_prides_reward_learning(tiny_kwargs):
+    """u = 0: PRIDE is PEBBLE with PRIDE's label schedule and reward learning (REED's consistency), weight for weight."""
+    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=3, **with_prides_reward_learning(tiny_kwargs)).learn(700)
+    pride = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, **tiny_kwargs, **tiny_pride(synthetic_ratio=0.0)).learn(700)
     assert pride.diffusion_retrains == 0 and pride.replay_buffer.synthetic.size() == 0
     for p, q in zip(pebble.policy.parameters(), pride.policy.parameters(), strict=True):
         assert th.equal(p, q)
@@ -134,6 +164,7 @@ def test_save_load_predict_identical(tiny_kwargs, tmp_path):
     for name, tensor in model.generator.diffusion.state_dict().items():
         assert th.equal(tensor, loaded.generator.diffusion.state_dict()[name]), name
     assert loaded.synthetic_ratio == 0.5 and loaded.diffusion_interval == 300
+    assert loaded.reward_learner.consistency is not None and loaded.feedback_schedule == "front_loaded"
 
 
 @pytest.mark.slow
@@ -216,7 +247,7 @@ def test_gradient_steps_update_on_mixed_minibatches(tiny_kwargs, on_top):
 def test_synthetic_on_top_keeps_batch_size_real_rows(tiny_kwargs, ratio, n_synthetic):
     """With synthetic_on_top the synthetic rows come on top of batch_size real ones (B = 64 here), as many real rows
     as PEBBLE's updates see at the same batch_size; without it they take the place of real ones."""
-    kwargs = dict(synthetic_ratio=ratio, **tiny_kwargs, **TINY_DIFFUSION)
+    kwargs = dict(**tiny_kwargs, **tiny_pride(synthetic_ratio=ratio))
     on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **{**kwargs, "synthetic_on_top": True})
     on_top.diagnostic_interval = 10**9  # the critic diagnostics draw minibatches too
     on_top.learn(350)  # synthetic data from step 300
@@ -238,7 +269,7 @@ def test_synthetic_on_top_trains_as_pebble_until_the_first_generation(tiny_kwarg
     """With synthetic_on_top every minibatch holds batch_size real rows: until the first generation (step 600 here)
     PRIDE trains exactly as PEBBLE (bit-identical weights), the first feedback session and critic reset (step 300)
     included, not on a larger minibatch of real rows."""
-    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, **tiny_kwargs).learn(599)
+    pebble = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, **with_prides_reward_learning(tiny_kwargs)).learn(599)
     kwargs = {**tiny_kwargs, **TINY_DIFFUSION, "synthetic_on_top": True, "synthetic_start": 600}
     on_top = PRIDE("MlpPolicy", "Pendulum-v1", seed=4, **kwargs).learn(599)
     assert on_top.replay_buffer.synthetic.size() == 0 and on_top.minibatch_size(64) == 64
@@ -386,6 +417,8 @@ def test_a_model_saved_by_version_0_1_0_loads_with_its_generator_and_teacher():
     assert model.generator.diffusion is not None and model.model_terminals is False
     teacher = model.feedback.resolve(model.teacher, model.seed)
     np.testing.assert_array_equal(teacher.rng.random(3), np.load(data / "pride_0.1.0_next_draws.npy"))
+    # saved before PRIDE's label schedule and reward learning defaults: it keeps PEBBLE's, as it was trained
+    assert model.feedback_schedule == "constant" and model.reward_learner.consistency is None
     model.learn(100, reset_num_timesteps=False)
 
 

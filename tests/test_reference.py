@@ -37,11 +37,14 @@ def reference_runs() -> dict[str, np.ndarray]:
     runs = {}
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=3, device="cpu", **TINY)
     runs["pebble"] = weights(model.learn(900))
+    # PRIDE's generator and mixing, with PEBBLE's label schedule and reward learning at u = 0.5
     generator = dict(window=500, **TINY_GENERATOR)
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, device="cpu", generator_kwargs=generator, **TINY_PRIDE, **TINY)
-    runs["pride_default"] = weights(model.learn(900))
+    pebbles = dict(synthetic_ratio=0.5, feedback_schedule="constant", reward_kwargs=dict(dynamics_consistency=False))
+    near_real = merge_kwargs(TINY, dict(generator_kwargs=generator, **TINY_PRIDE, **pebbles))
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, device="cpu", **near_real)
+    runs["pride_near_real"] = weights(model.learn(900))
     synthetic = model.replay_buffer.synthetic
-    runs["pride_default_synthetic"] = synthetic.observations[: synthetic.size()].ravel()[:500]
+    runs["pride_near_real_synthetic"] = synthetic.observations[: synthetic.size()].ravel()[:500]
     # the paper's recipe, with the rows on top, a whitened model and the reward filter: every other branch
     paper = merge_kwargs(
         PAPER_RECIPE,
@@ -52,7 +55,7 @@ def reference_runs() -> dict[str, np.ndarray]:
             generator_kwargs=dict(keep_quantile=0.5, filter="reward", normalization="whiten", **TINY_GENERATOR),
         ),
     )
-    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, device="cpu", **paper, **TINY)
+    model = PRIDE("MlpPolicy", "Pendulum-v1", seed=3, device="cpu", **merge_kwargs(TINY, paper))
     runs["pride_paper_like"] = weights(model.learn(900))
     return runs
 

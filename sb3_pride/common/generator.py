@@ -123,7 +123,7 @@ class TransitionGenerator:
         action_dim: int,
         width: int = 256,
         n_blocks: int = 3,
-        train_steps: int = 4000,
+        train_steps: int = 2000,
         sample_steps: int = 8,
         warm_start: bool = True,
         normalization: str = "per_dimension",

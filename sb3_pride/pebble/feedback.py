@@ -75,7 +75,7 @@ def check_labels(answer: object, n_pairs: int) -> np.ndarray:
 
 
 #: the named feedback schedules (``FeedbackSchedule``)
-FEEDBACK_SCHEDULES = ("constant", "shrinking", "growing")
+FEEDBACK_SCHEDULES = ("constant", "shrinking", "growing", "front_loaded")
 
 
 class FeedbackSchedule:
@@ -86,15 +86,19 @@ class FeedbackSchedule:
     - "shrinking": B-Pref's ``reward_schedule=1``, K · (T − t) / T at step t of a run of T steps (``learn()``'s
       ``total_timesteps``): the budget front-loaded, its tail thinning, so that r̂ goes on learning later in the run;
     - "growing": B-Pref's ``reward_schedule=2``, K · T / (T − t + 1);
+    - "front_loaded": half the budget Q (``max_feedback``, rounded up) in the first session and the other half in the
+      next four, K not used: r̂ learns the first policy from many labels and goes on learning, on fewer, from the
+      states later policies reach;
     - a sequence of positive ints: the sizes of the first sessions, one each (K for every session after them).
 
     Sizes are truncated to an int, as B-Pref's, and at least 1.
 
     :param schedule: one of ``FEEDBACK_SCHEDULES`` or a sequence of session sizes
     :param queries_per_session: K
+    :param max_feedback: Q, the budget ("front_loaded" sizes its sessions from it)
     """
 
-    def __init__(self, schedule: "str | Sequence[int]", queries_per_session: int):
+    def __init__(self, schedule: "str | Sequence[int]", queries_per_session: int, max_feedback: int):
         if isinstance(schedule, str):
             if schedule not in FEEDBACK_SCHEDULES:
                 raise ValueError(
@@ -107,7 +111,7 @@ class FeedbackSchedule:
         ):
             raise ValueError(f"feedback_schedule: a list of session sizes must hold positive ints, got {schedule!r}")
         self.schedule = schedule if isinstance(schedule, str) else tuple(int(n) for n in schedule)
-        self.queries_per_session = queries_per_session
+        self.queries_per_session, self.max_feedback = queries_per_session, max_feedback
 
     def size(self, session: int, step: int, total_steps: int) -> int:
         """Queries of feedback session ``session`` (1 for the first) published at env step ``step`` of ``total_steps``."""
@@ -118,6 +122,9 @@ class FeedbackSchedule:
             return max(1, int(k * max(total_steps - step, 0) / max(total_steps, 1)))
         if schedule == "growing":
             return max(1, int(k * total_steps / max(total_steps - step + 1, 1)))
+        if schedule == "front_loaded":
+            first = (self.max_feedback + 1) // 2
+            return first if session == 1 else max(1, -(-(self.max_feedback - first) // 4))  # ceil((Q - first) / 4)
         return k
 
     def plan(self, session: int, step: int, interval: int, total_steps: int, remaining: int) -> list[tuple[int, int]]:
@@ -140,8 +147,9 @@ class FeedbackSchedule:
 
 def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Sequence[int]") -> None:
     """
-    A run whose planned sessions cannot ask the budget: refused for a schedule that was chosen (``feedback_schedule``
-    other than "constant"), a warning for the constant one (PEBBLE's runs that stop before their budget is asked).
+    A run whose planned sessions cannot ask the budget: refused for a schedule that spreads the budget over the run
+    ("shrinking", "growing", a list of sizes), a warning for the defaults ("constant", PEBBLE's, and "front_loaded",
+    PRIDE's: a short run, a smoke test, ends before its budget is asked).
     """
     asked = sum(queries for _, queries in plan)
     if asked >= remaining:
@@ -152,7 +160,7 @@ def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Seq
         + (f", the last at step {plan[-1][0]})" if plan else ")")
         + "; lengthen the run, shorten feedback_interval or give a larger queries_per_session or schedule"
     )
-    if schedule == "constant":
+    if schedule in ("constant", "front_loaded"):
         warnings.warn(message, stacklevel=caller_stacklevel())  # the user's learn()
     else:
         raise ValueError(f"feedback_schedule={schedule!r}: {message}")

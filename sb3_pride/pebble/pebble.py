@@ -23,7 +23,7 @@ from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import OPTION_SETTINGS, ReplayRewards, RewardLearner
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import InteractiveTeacher, Teacher
-from sb3_pride.common.utils import check_positive_ints, seeded
+from sb3_pride.common.utils import seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
 from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS, STRUCTURED_SETTINGS, migrate_parameters, migrate_saved_model
@@ -59,7 +59,8 @@ class PEBBLE(AtomicSaves, SAC):
     :param feedback_interval: M, env steps between feedback sessions
     :param queries_per_session: K, queries asked per session (the last session is cut to the budget)
     :param feedback_schedule: the label schedule (``FeedbackSchedule``): "constant" (K each session), B-Pref's
-        "shrinking" or "growing" (K scaled by the step within ``learn()``'s run), or a list of the first sessions' sizes
+        "shrinking" or "growing" (K scaled by the step within ``learn()``'s run), "front_loaded" (half the budget in
+        the first session, the other half in the next four), or a list of the first sessions' sizes
     :param segment_length: steps per segment (PEBBLE: 50); a segment never crosses an episode end
     :param query_selection: how the K queries are picked among random candidate pairs (``QuerySampler``'s
         ``selection``: "uniform", "disagreement", "entropy", "kcenter", ...); the first session is always uniform
@@ -138,8 +139,9 @@ class PEBBLE(AtomicSaves, SAC):
         _init_setup_model: bool = True,
         **renamed_settings: Any,
     ):
-        check_positive_ints(max_feedback=max_feedback, feedback_interval=feedback_interval)
-        check_feedback_settings(queries_per_session, feedback_schedule, unsupervised_steps, asynchronous_feedback)
+        check_feedback_settings(
+            max_feedback, feedback_interval, queries_per_session, feedback_schedule, unsupervised_steps, asynchronous_feedback
+        )
         check_sac_arguments(n_steps, gradient_steps, replay_buffer_class, self.buffer_class)
         settings = preference_settings(
             renamed_settings, segment_length, query_selection, reward_kwargs, query_kwargs, pretraining_kwargs
@@ -168,8 +170,7 @@ class PEBBLE(AtomicSaves, SAC):
         self.unsupervised_steps, self.asynchronous_feedback = unsupervised_steps, bool(asynchronous_feedback)
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.prior_preferences = prior_preferences
-        self.reward_kwargs, self.query_kwargs = settings["reward_kwargs"], settings["query_kwargs"]
-        self.pretraining_kwargs = settings["pretraining_kwargs"]
+        self.reward_kwargs, self.query_kwargs, self.pretraining_kwargs = (settings[name] for name in STRUCTURED_SETTINGS)
         # learning state, saved with the model
         self.feedback_asked = self.feedback_labeled = self.feedback_sessions = 0
         #: env steps the agent made while a published session's answers were awaited, over the run
@@ -287,8 +288,9 @@ class PEBBLE(AtomicSaves, SAC):
     def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
                      tb_log_name: str = "run", progress_bar: bool = False) -> tuple[int, BaseCallback]:  # fmt: skip
         if reset_num_timesteps:  # a whole run: its budget must be asked within it (a run in parts is not checked)
-            schedule, next_step = FeedbackSchedule(self.feedback_schedule, self.queries_per_session), self.next_feedback_step
-            remaining, next_step = self.max_feedback - self.feedback_asked, max(0, next_step - self.num_timesteps)
+            schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session, self.max_feedback)
+            remaining = self.max_feedback - self.feedback_asked
+            next_step = max(0, self.next_feedback_step - self.num_timesteps)
             schedule.check(self.feedback_sessions + 1, next_step, self.feedback_interval, total_timesteps, remaining)
             if self.num_timesteps > 0:
                 self._shift_schedules(-self.num_timesteps)  # the step count restarts at 0: keep the remaining distances
@@ -326,8 +328,8 @@ class PEBBLE(AtomicSaves, SAC):
         self.feedback.resolve(self.teacher, self.seed)
         sampler, session = self.query_sampler, self.feedback_sessions + 1
         returns, labeled = self.reward_model.member_segment_returns, self.preferences.inputs
-        schedule, selection = FeedbackSchedule(self.feedback_schedule, self.queries_per_session), self.query_selection
-        size = schedule.size(session, self.num_timesteps, self._total_timesteps)
+        schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session, self.max_feedback)
+        size, selection = schedule.size(session, self.num_timesteps, self._total_timesteps), self.query_selection
         return self.feedback.publish(
             self.feedback.context(session, self.feedback_asked, self.max_feedback),
             n_queries=min(size, self.max_feedback - self.feedback_asked),

@@ -49,11 +49,19 @@ def preference_settings(
 
 
 def check_feedback_settings(
-    queries_per_session: Any, feedback_schedule: Any, unsupervised_steps: Any, asynchronous_feedback: Any
+    max_feedback: Any,
+    feedback_interval: Any,
+    queries_per_session: Any,
+    feedback_schedule: Any,
+    unsupervised_steps: Any,
+    asynchronous_feedback: Any,
 ) -> None:
-    """K a positive int, a label schedule ``FeedbackSchedule`` takes, pre-training steps >= 0, True or False."""
+    """
+    Q, M and K positive ints, a label schedule ``FeedbackSchedule`` takes, pre-training steps >= 0, True or False.
+    """
+    check_positive_ints(max_feedback=max_feedback, feedback_interval=feedback_interval)
     check_positive_ints(queries_per_session=queries_per_session)
-    FeedbackSchedule(feedback_schedule, queries_per_session)
+    FeedbackSchedule(feedback_schedule, queries_per_session, max_feedback)
     check_non_negative_ints(unsupervised_steps=unsupervised_steps)
     if not isinstance(asynchronous_feedback, (bool, np.bool_)):
         raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")

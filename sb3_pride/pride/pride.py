@@ -1,3 +1,4 @@
+from collections.abc import Sequence
 from typing import Any, ClassVar
 
 import numpy as np
@@ -14,7 +15,7 @@ from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
 from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.pebble.migration import migrate_generator_settings
-from sb3_pride.pride.recipes import check_generator_kwargs, check_synthetic_settings
+from sb3_pride.pride.recipes import check_generator_kwargs, check_synthetic_settings, with_reward_defaults
 
 
 class PRIDE(PEBBLE):
@@ -32,10 +33,12 @@ class PRIDE(PEBBLE):
     stale until the next generation). Terminal flags are modelled only if the real buffer holds a true termination by
     the first retrain (never on DMC or Meta-World, whose episodes only time out).
 
-    Every other parameter is PEBBLE's (and SAC's), with the same defaults. PRIDE's own defaults are the best
-    configuration measured at the CPU tier; ``PRIDE(..., **PAPER_RECIPE)`` (``sb3_pride.pride.PAPER_RECIPE``) is the
-    paper's algorithm, and ``hyperparams/pride.yml`` runs it at the paper's scale. Step counts are for 50k-step runs:
-    scale them with the run.
+    Every other parameter is PEBBLE's (and SAC's), with the same defaults, except three of PEBBLE's that PRIDE sets for
+    its purpose, feedback efficiency (the paper's "half the labels"): half PEBBLE's budget, asked front-loaded, and r̂
+    learned with REED's consistency pre-training (Metcalf et al., 2023). PRIDE's own defaults are the configuration
+    chosen at the CPU tier; ``PRIDE(..., **PAPER_RECIPE)`` (``sb3_pride.pride.PAPER_RECIPE``) is the paper's
+    algorithm, and ``hyperparams/pride.yml`` runs it at the paper's scale. Step counts are for 50k-step runs: scale
+    them with the run.
 
     :param synthetic_ratio: u, the synthetic share of each SAC minibatch, in [0, 1] (paper: 0.5). With 0 the
         generator is never trained and PRIDE trains exactly as PEBBLE
@@ -54,6 +57,12 @@ class PRIDE(PEBBLE):
         ``train_steps``, ``sample_steps``), ``warm_start``, ``normalization``, ``model_state_change``, ``generation``,
         ``anchor_noise``, ``window``, ``keep_quantile``, ``filter``, ``fidelity_check``, ``diffusion_kwargs``,
         ``dynamics_kwargs``; those not given keep the generator's defaults
+    :param max_feedback: Q, the total query budget, as PEBBLE's: by default half PEBBLE's (500)
+    :param feedback_schedule: the label schedule, as PEBBLE's: by default "front_loaded" (half the budget in the first
+        feedback session, the other half in the next four), where PEBBLE's is "constant"
+    :param reward_kwargs: the ``RewardLearner`` settings, as PEBBLE's, on top of PRIDE's ``PRIDE_REWARD_DEFAULTS``
+        (``sb3_pride.pride.recipes``: REED's consistency pre-training, five passes per session); turn it off with
+        ``reward_kwargs=dict(dynamics_consistency=False)``
     """
 
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = DualReplayBuffer  # type: ignore[assignment]
@@ -65,7 +74,7 @@ class PRIDE(PEBBLE):
         self,
         policy: str | type[SACPolicy],
         env: GymEnv | str,
-        synthetic_ratio: float = 0.5,
+        synthetic_ratio: float = 0.25,
         synthetic_start: int = 10_000,
         synthetic_ramp: int = 5000,
         synthetic_on_top: bool = False,
@@ -73,6 +82,9 @@ class PRIDE(PEBBLE):
         synthetic_samples: int = 10_000,
         synthetic_buffer_size: int | None = None,
         generator_kwargs: dict[str, Any] | None = None,
+        max_feedback: int = 500,
+        feedback_schedule: str | Sequence[int] = "front_loaded",
+        reward_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
     ):
@@ -85,6 +97,10 @@ class PRIDE(PEBBLE):
         replay_buffer_kwargs = dict(pebble_kwargs.pop("replay_buffer_kwargs", None) or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
+        pebble_kwargs.update(max_feedback=max_feedback, reward_kwargs=reward_kwargs)
+        if _init_setup_model:  # not SB3's load(): a saved model keeps what it was saved with (PEBBLE's, if it predates)
+            pebble_kwargs.update(feedback_schedule=feedback_schedule)
+            pebble_kwargs["reward_kwargs"] = with_reward_defaults(reward_kwargs, pebble_kwargs)
         super().__init__(policy, env, replay_buffer_kwargs=replay_buffer_kwargs, _init_setup_model=False, **pebble_kwargs)
         if _init_setup_model and self.env is not None:  # PEBBLE skipped it, as it does for load()
             check_episode_length(self.env, self.segment_length)

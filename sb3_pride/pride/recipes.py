@@ -14,12 +14,32 @@ import numpy as np
 
 from sb3_pride.common.generator import TransitionGenerator
 from sb3_pride.common.utils import check_real, merge_kwargs
-from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS
+from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS, RENAMED_PEBBLE_SETTINGS
 
-#: the paper's PRIDE: synthetic data from the first reward model on at full u, in place of real rows in each
-#: minibatch, from an unconditional diffusion model of [s, a, s'] refitted from scratch on all real transitions
-#: every 10k steps, every sample kept
+#: PRIDE()'s reward learning on top of PEBBLE's: REED's consistency pre-training (Metcalf et al., 2023), five passes over
+#: the stored transitions per feedback session (``reward_kwargs`` given to PRIDE() go on top of these)
+PRIDE_REWARD_DEFAULTS: dict[str, Any] = dict(dynamics_consistency=dict(epochs=5))
+
+
+def with_reward_defaults(reward_kwargs: Any, other_kwargs: dict[str, Any]) -> Any:
+    """
+    PRIDE's ``reward_kwargs``: ``PRIDE_REWARD_DEFAULTS`` with the given ones on top. An entry given as a flat keyword
+    of an earlier version (``dynamics_consistency=...`` in ``other_kwargs``) wins as well; anything but a dict or None
+    is left for PEBBLE's check to refuse.
+    """
+    if reward_kwargs is not None and not isinstance(reward_kwargs, dict):
+        return reward_kwargs
+    flat = {RENAMED_PEBBLE_SETTINGS[name][1] for name in other_kwargs if name in RENAMED_PEBBLE_SETTINGS}
+    return {**{key: value for key, value in PRIDE_REWARD_DEFAULTS.items() if key not in flat}, **(reward_kwargs or {})}
+
+
+#: the paper's PRIDE: PEBBLE's reward learning and label schedule, synthetic data from the first reward model on at
+#: u = 0.5, in place of real rows in each minibatch, from an unconditional diffusion model of [s, a, s'] refitted
+#: from scratch on all real transitions every 10k steps, every sample kept
 PAPER_RECIPE: dict[str, Any] = dict(
+    feedback_schedule="constant",
+    reward_kwargs=dict(dynamics_consistency=False),
+    synthetic_ratio=0.5,
     synthetic_start=0,
     synthetic_ramp=0,
     synthetic_on_top=False,
