@@ -46,7 +46,7 @@ from typing import Any
 os.environ.setdefault("MUJOCO_GL", "disable")
 
 ROOT = Path(__file__).resolve().parent.parent
-DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "walker-run", "finger-spin"}
+DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "walker-run", "finger-spin", "hopper-stand"}
 ALGOS = ("pride", "pebble", "sac")
 #: the file in a run folder that names the grid process running it (``claim_run``)
 CLAIM = "claim"
