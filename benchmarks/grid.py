@@ -93,6 +93,10 @@ def load_grid(path: Path) -> dict[str, Any]:
         missing = sorted({"configurations", "tasks", "seeds"} - set(block))
         if missing:
             raise GridError(f"{where}: missing {', '.join(missing)}")
+    settings = grid.get("pride_settings", {})
+    if not isinstance(settings, dict) or {"max_feedback", "synthetic_ratio"} & set(settings):
+        raise GridError(f"{path}: pride_settings is a mapping of PRIDE's arguments other than those its blocks set "
+                        "(max_feedback, synthetic_ratio: feedback, ratios)")  # fmt: skip
     grid["path"] = Path(path)
     return grid
 

@@ -600,9 +600,14 @@ def render_docs(data: dict[str, Any]) -> str:
 
 
 def reference_row(rows: list[dict]) -> dict | None:
-    """A task's PEBBLE reference among its rows (plain PEBBLE at the budget the rows are compared with)."""
+    """A task's PEBBLE reference among its rows (plain PEBBLE at the budget the rows are compared with, the one run
+    beside PRIDE's defaults first)."""
     feedback = next((row["reference_feedback"] for row in rows if row["reference_feedback"]), None)
-    return next((row for row in rows if row["configuration"] == "pebble" and row["feedback"] == feedback), None)
+    for label in (REFERENCES["pebble"], "pebble"):
+        found = next((row for row in rows if row["configuration"] == label and row["feedback"] == feedback), None)
+        if found is not None:
+            return found
+    return None
 
 
 def budget_phrase(row: dict) -> str:

@@ -20,8 +20,9 @@ import sb3_pride
 from sb3_pride.human.render import use_headless_gl
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 
-#: the demo is shorter than a CPU-tier run (hyperparams/cpu/): less pre-training, a smaller budget
-DEMO_OVERRIDES = dict(unsupervised_steps=2000, max_feedback=200, queries_per_session=50)
+#: the demo is shorter than a CPU-tier run (hyperparams/cpu/): less pre-training, feedback sessions every 4000 steps
+#: (PRIDE's front-loaded schedule asks in five), half the tier's budget
+DEMO_OVERRIDES = dict(unsupervised_steps=2000, feedback_interval=4000)
 
 
 def main() -> None:
@@ -53,7 +54,8 @@ def main() -> None:
     with open(config) as file:
         key = args.env if args.env in yaml.safe_load(file) else "sb3_pride/walker-walk-v0"
     _, kwargs = model_kwargs(config, key)
-    kwargs.update(DEMO_OVERRIDES, buffer_size=args.timesteps, teacher=args.teacher, preference_journal=args.preference_journal)
+    kwargs.update(DEMO_OVERRIDES, max_feedback=kwargs["max_feedback"] // 2, buffer_size=args.timesteps, teacher=args.teacher)
+    kwargs.update(preference_journal=args.preference_journal)
     algo = {"pride": sb3_pride.PRIDE, "pebble": sb3_pride.PEBBLE}[args.algo]
     model = algo("MlpPolicy", args.env, seed=args.seed, verbose=1, **kwargs)
     start = time.time()

@@ -253,6 +253,8 @@ def test_budget_and_ratio_left_out_of_a_grid_are_each_tasks_yaml_values(grid, tm
         ("jobs: 2\nruns:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: [0]}\n",
          "grid.yml: unknown key jobs .a grid file takes"),
         ("runs:\n  - {configurations: [pebble], tasks: [walker-walk]}\n", "runs.0.: missing seeds"),
+        ("pride_settings: {max_feedback: 100}\nruns:\n  - {configurations: [pride], tasks: [walker-walk], seeds: [0]}\n",
+         "pride_settings is a mapping of PRIDE's arguments other than those its blocks set"),
         ("runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: first}\n", "seeds must be a list"),
         ("tasks: [walker-walk]\n", "a 'runs' list of blocks"),
     ],

@@ -141,6 +141,25 @@ def test_prides_defaults_are_pebbles_with_half_the_labels_front_loaded_and_reeds
     paper = PRIDE("MlpPolicy", "Pendulum-v1", **PAPER_RECIPE)
     assert paper.reward_learner.consistency is None and paper.feedback_schedule == "constant"
     assert paper.synthetic_ratio == 0.5
+    # entry by entry: a consistency setting given keeps the five passes; the defaults are never shared
+    partial = PRIDE("MlpPolicy", "Pendulum-v1", reward_kwargs=dict(dynamics_consistency=dict(batch_size=64)))
+    assert partial.reward_learner.consistency.settings.epochs == 5
+    assert partial.reward_learner.consistency.settings.batch_size == 64
+    assert PRIDE_REWARD_DEFAULTS == {"dynamics_consistency": {"epochs": 5}}
+    # SB3's load() builds with _init_setup_model=False: a schedule given there is kept, the default is PEBBLE's
+    assert PRIDE("MlpPolicy", "Pendulum-v1", feedback_schedule="shrinking", _init_setup_model=False).feedback_schedule == (
+        "shrinking"
+    )
+    assert PRIDE("MlpPolicy", "Pendulum-v1", _init_setup_model=False).feedback_schedule == "constant"
+
+
+def test_a_model_saved_by_an_earlier_version_keeps_its_4000_diffusion_steps():
+    """0.1.0 and 0.2.0 saved PEBBLE's settings flat and only the generator settings given: their default was 4000."""
+    from sb3_pride.pebble.migration import migrate_generator_settings
+
+    assert migrate_generator_settings({"reward_epochs": 50}) == {"train_steps": 4000}
+    assert migrate_generator_settings({"reward_epochs": 50, "diffusion_train_steps": 300}) == {"train_steps": 300}
+    assert migrate_generator_settings({"reward_kwargs": {"epochs": 50}}) == {}  # this version's: its own settings
 
 
 @pytest.mark.slow

@@ -86,12 +86,12 @@ class FeedbackSchedule:
     - "shrinking": B-Pref's ``reward_schedule=1``, K · (T − t) / T at step t of a run of T steps (``learn()``'s
       ``total_timesteps``): the budget front-loaded, its tail thinning, so that r̂ goes on learning later in the run;
     - "growing": B-Pref's ``reward_schedule=2``, K · T / (T − t + 1);
-    - "front_loaded": half the budget Q (``max_feedback``, rounded up) in the first session and the other half in the
-      next four, K not used: r̂ learns the first policy from many labels and goes on learning, on fewer, from the
-      states later policies reach;
+    - "front_loaded": half the budget Q (``max_feedback``, rounded up) in the first session and the other half in
+      sessions of a quarter of it, rounded up (four, fewer below Q = 8), K not used: r̂ learns the first policy from
+      many labels and goes on learning, on fewer, from the states later policies reach;
     - a sequence of positive ints: the sizes of the first sessions, one each (K for every session after them).
 
-    Sizes are truncated to an int, as B-Pref's, and at least 1.
+    "shrinking" and "growing" truncate their sizes to an int, as B-Pref does, and ask at least 1.
 
     :param schedule: one of ``FEEDBACK_SCHEDULES`` or a sequence of session sizes
     :param queries_per_session: K
@@ -158,7 +158,8 @@ def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Seq
         f"the budget cannot be asked within the run: {remaining} queries remain of max_feedback, but the sessions "
         f"planned before learn()'s total_timesteps ask {asked} ({len(plan)} session{'' if len(plan) == 1 else 's'}"
         + (f", the last at step {plan[-1][0]})" if plan else ")")
-        + "; lengthen the run, shorten feedback_interval or give a larger queries_per_session or schedule"
+        + "; lengthen the run, shorten feedback_interval"
+        + ("" if schedule == "front_loaded" else " or give a larger queries_per_session or schedule")
     )
     if schedule in ("constant", "front_loaded"):
         warnings.warn(message, stacklevel=caller_stacklevel())  # the user's learn()

@@ -117,7 +117,8 @@ def migrate_saved_model(state: dict[str, Any]) -> None:
 def migrate_generator_settings(saved: dict[str, Any]) -> dict[str, Any]:
     """
     The ``generator_kwargs`` of a PRIDE saved by version 0.1.0, from the flat settings it holds (removed from
-    ``saved``, a model's ``__dict__``); an empty dict for a model saved by a later version. A development model's
+    ``saved``, a model's ``__dict__``), with the diffusion steps of 0.1.0 and 0.2.0 (4000) where it gives none; an
+    empty dict for a model saved by a later version. A development model's
     ``synthetic_consistency`` (the generator's transitions in REED's consistency passes, not kept) is dropped, with a
     warning where it was on.
     """
@@ -127,7 +128,10 @@ def migrate_generator_settings(saved: dict[str, Any]) -> dict[str, Any]:
             "did not help reward learning): its consistency passes now take the real transitions only",
             stacklevel=2,
         )
-    return {new: saved.pop(old) for old, new in RENAMED_GENERATOR_SETTINGS.items() if old in saved}
+    settings = {new: saved.pop(old) for old, new in RENAMED_GENERATOR_SETTINGS.items() if old in saved}
+    if any(name in saved for name in RENAMED_PEBBLE_SETTINGS):  # saved by 0.1.0 or 0.2.0, whose default was 4000
+        settings.setdefault("train_steps", 4000)
+    return settings
 
 
 def migrate_parameters(parameters: Any) -> Any:

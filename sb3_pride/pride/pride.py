@@ -58,11 +58,11 @@ class PRIDE(PEBBLE):
         ``anchor_noise``, ``window``, ``keep_quantile``, ``filter``, ``fidelity_check``, ``diffusion_kwargs``,
         ``dynamics_kwargs``; those not given keep the generator's defaults
     :param max_feedback: Q, the total query budget, as PEBBLE's: by default half PEBBLE's (500)
-    :param feedback_schedule: the label schedule, as PEBBLE's: by default "front_loaded" (half the budget in the first
+    :param feedback_schedule: the label schedule, as PEBBLE's; None: "front_loaded" (half the budget in the first
         feedback session, the other half in the next four), where PEBBLE's is "constant"
-    :param reward_kwargs: the ``RewardLearner`` settings, as PEBBLE's, on top of PRIDE's ``PRIDE_REWARD_DEFAULTS``
-        (``sb3_pride.pride.recipes``: REED's consistency pre-training, five passes per session); turn it off with
-        ``reward_kwargs=dict(dynamics_consistency=False)``
+    :param reward_kwargs: the ``RewardLearner`` settings, as PEBBLE's, merged entry by entry on top of PRIDE's
+        ``PRIDE_REWARD_DEFAULTS`` (``sb3_pride.pride.recipes``: REED's consistency pre-training, five passes per
+        session); turn it off with ``reward_kwargs=dict(dynamics_consistency=False)``
     """
 
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = DualReplayBuffer  # type: ignore[assignment]
@@ -83,7 +83,7 @@ class PRIDE(PEBBLE):
         synthetic_buffer_size: int | None = None,
         generator_kwargs: dict[str, Any] | None = None,
         max_feedback: int = 500,
-        feedback_schedule: str | Sequence[int] = "front_loaded",
+        feedback_schedule: str | Sequence[int] | None = None,
         reward_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
         **pebble_kwargs: Any,
@@ -97,10 +97,12 @@ class PRIDE(PEBBLE):
         replay_buffer_kwargs = dict(pebble_kwargs.pop("replay_buffer_kwargs", None) or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
-        pebble_kwargs.update(max_feedback=max_feedback, reward_kwargs=reward_kwargs)
-        if _init_setup_model:  # not SB3's load(): a saved model keeps what it was saved with (PEBBLE's, if it predates)
-            pebble_kwargs.update(feedback_schedule=feedback_schedule)
-            pebble_kwargs["reward_kwargs"] = with_reward_defaults(reward_kwargs, pebble_kwargs)
+        # PRIDE's schedule and reward learning, except for SB3's load(): a model saved before they existed keeps PEBBLE's
+        if feedback_schedule is None:
+            feedback_schedule = "front_loaded" if _init_setup_model else "constant"
+        if _init_setup_model:
+            reward_kwargs = with_reward_defaults(reward_kwargs, pebble_kwargs)
+        pebble_kwargs.update(max_feedback=max_feedback, feedback_schedule=feedback_schedule, reward_kwargs=reward_kwargs)
         super().__init__(policy, env, replay_buffer_kwargs=replay_buffer_kwargs, _init_setup_model=False, **pebble_kwargs)
         if _init_setup_model and self.env is not None:  # PEBBLE skipped it, as it does for load()
             check_episode_length(self.env, self.segment_length)

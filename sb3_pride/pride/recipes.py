@@ -2,9 +2,10 @@
 Named PRIDE configurations, written once and used by the class, the hyperparameter files (``recipe: paper``), the
 docs and the tests alike.
 
-``PRIDE()``'s own defaults are the best configuration measured at the CPU tier; ``PAPER_RECIPE`` is the algorithm as
-the paper (Feng et al., 2025) and SynthER (Lu et al., 2023) describe it, at whatever diffusion sizes are given beside
-it (``SYNTHER_SIZES`` for theirs).
+``PRIDE()``'s own defaults are the configuration chosen at the CPU tier to keep half the labels; ``PAPER_RECIPE`` is
+the algorithm as the paper (Feng et al., 2025) and SynthER (Lu et al., 2023) describe it, at whatever diffusion sizes
+and label budget are given beside it (``SYNTHER_SIZES`` for theirs); combine it with other settings through
+``merge_kwargs(PAPER_RECIPE, {...})`` (``sb3_pride.common.utils``), which merges the structured ones entry by entry.
 """
 
 import copy
@@ -23,14 +24,16 @@ PRIDE_REWARD_DEFAULTS: dict[str, Any] = dict(dynamics_consistency=dict(epochs=5)
 
 def with_reward_defaults(reward_kwargs: Any, other_kwargs: dict[str, Any]) -> Any:
     """
-    PRIDE's ``reward_kwargs``: ``PRIDE_REWARD_DEFAULTS`` with the given ones on top. An entry given as a flat keyword
-    of an earlier version (``dynamics_consistency=...`` in ``other_kwargs``) wins as well; anything but a dict or None
-    is left for PEBBLE's check to refuse.
+    PRIDE's ``reward_kwargs``: a copy of ``PRIDE_REWARD_DEFAULTS`` with the given ones merged on top, entry by entry
+    (``{"dynamics_consistency": {"batch_size": 64}}`` keeps the five passes; ``True`` is REED's published settings).
+    An entry given as a flat keyword of an earlier version (``dynamics_consistency=...`` in ``other_kwargs``) wins as
+    well; anything but a dict or None is left for PEBBLE's check to refuse.
     """
     if reward_kwargs is not None and not isinstance(reward_kwargs, dict):
         return reward_kwargs
     flat = {RENAMED_PEBBLE_SETTINGS[name][1] for name in other_kwargs if name in RENAMED_PEBBLE_SETTINGS}
-    return {**{key: value for key, value in PRIDE_REWARD_DEFAULTS.items() if key not in flat}, **(reward_kwargs or {})}
+    defaults = {key: copy.deepcopy(value) for key, value in PRIDE_REWARD_DEFAULTS.items() if key not in flat}
+    return merge_kwargs(defaults, reward_kwargs or {})
 
 
 #: the paper's PRIDE: PEBBLE's reward learning and label schedule, synthetic data from the first reward model on at
