@@ -25,6 +25,15 @@ from sb3_pride.zoo import hyperparams_dir, model_kwargs
 DEMO_OVERRIDES = dict(unsupervised_steps=2000, feedback_interval=4000)
 
 
+def demo_kwargs(algo: str, env: str) -> dict:
+    """The CPU tier's settings of ``algo`` for ``env`` (walker-walk's for an env the tier has no entry for), shortened."""
+    config = hyperparams_dir() / "cpu" / f"{algo}.yml"
+    with open(config) as file:
+        key = env if env in yaml.safe_load(file) else "sb3_pride/walker-walk-v0"
+    _, kwargs = model_kwargs(config, key)
+    return {**kwargs, **DEMO_OVERRIDES, "max_feedback": kwargs["max_feedback"] // 2}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--algo", choices=["pride", "pebble"], default="pride")
@@ -49,13 +58,8 @@ def main() -> None:
     os.environ.setdefault("MUJOCO_GL", "disable")
     th.set_num_threads(args.threads)
 
-    # the CPU tier's settings for this env (walker-walk's for an env the tier has no entry for)
-    config = hyperparams_dir() / "cpu" / f"{args.algo}.yml"
-    with open(config) as file:
-        key = args.env if args.env in yaml.safe_load(file) else "sb3_pride/walker-walk-v0"
-    _, kwargs = model_kwargs(config, key)
-    kwargs.update(DEMO_OVERRIDES, max_feedback=kwargs["max_feedback"] // 2, buffer_size=args.timesteps, teacher=args.teacher)
-    kwargs.update(preference_journal=args.preference_journal)
+    kwargs = demo_kwargs(args.algo, args.env)
+    kwargs.update(buffer_size=args.timesteps, teacher=args.teacher, preference_journal=args.preference_journal)
     algo = {"pride": sb3_pride.PRIDE, "pebble": sb3_pride.PEBBLE}[args.algo]
     model = algo("MlpPolicy", args.env, seed=args.seed, verbose=1, **kwargs)
     start = time.time()

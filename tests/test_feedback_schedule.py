@@ -149,3 +149,15 @@ def test_the_schedule_and_the_selection_are_read_when_a_session_is_asked(tiny_kw
     model.queries_per_session = 5
     model.learn(350, reset_num_timesteps=False)
     assert model.feedback_asked == 5
+
+
+@pytest.mark.parametrize("algo", ["pebble", "pride"])
+def test_the_demo_asks_its_whole_budget_in_its_run(algo):
+    """``python -m sb3_pride`` (20k steps): PEBBLE's constant schedule and PRIDE's front-loaded one ask every query."""
+    from sb3_pride import PRIDE
+    from sb3_pride.__main__ import demo_kwargs
+
+    model = {"pebble": PEBBLE, "pride": PRIDE}[algo]("MlpPolicy", "Pendulum-v1", **demo_kwargs(algo, "Pendulum-v1"))
+    schedule = FeedbackSchedule(model.feedback_schedule, model.queries_per_session, model.max_feedback)
+    plan = schedule.plan(1, model.next_feedback_step, model.feedback_interval, 20_000, model.max_feedback)
+    assert sum(queries for _, queries in plan) == model.max_feedback
