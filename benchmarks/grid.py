@@ -16,6 +16,15 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
     comparisons: [[rows_on_top, rows_in_place]]   # optional: P(X > Y) of two configurations of a block's task
     pride_settings: {feedback_schedule: constant}  # optional: every PRIDE run's arguments on top of the tier's YAML,
                                                    # beneath its variant's (a grid made before a default changed)
+    claims:                            # optional: rules written before the runs, read by benchmarks/results_page.py
+      - name: half the labels
+        tasks: [walker-walk]
+        x: [rows_in_place, 200]        # a configuration and the budget it was set (null for SAC)
+        y: [pebble, 400]
+        metric: return                 # return (P(X > Y), its 95% interval) or last_corr (mean last corr(r̂, r))
+        p: 0.75                        # return: X holds if P(X > Y) >= p ...
+        lower: 0.5                     # ... and the interval's lower end is above this (optional)
+        seeds: 10                      # no verdict until each arm has this many finished seeds
     runs:
       - configurations: [pebble, rows_in_place]   # a variant label of hyperparams/<tier>/variants.yml or an algo
         tasks: [walker-walk]
@@ -41,8 +50,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import run
 
 GRID_KEYS = {
-    "description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "pride_settings", "runs"
+    "description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "pride_settings",
+    "claims", "runs",
 }  # fmt: skip
+#: what a claim of a grid file takes, and the metrics it can be read on
+CLAIM_KEYS = {"name", "tasks", "x", "y", "metric", "p", "lower", "seeds"}
+CLAIM_METRICS = ("return", "last_corr")
 BLOCK_KEYS = {"configurations", "tasks", "seeds", "feedback", "ratios"}
 
 
@@ -97,8 +110,41 @@ def load_grid(path: Path) -> dict[str, Any]:
     if not isinstance(settings, dict) or {"max_feedback", "synthetic_ratio"} & set(settings):
         raise GridError(f"{path}: pride_settings is a mapping of PRIDE's arguments other than those its blocks set "
                         "(max_feedback, synthetic_ratio: feedback, ratios)")  # fmt: skip
+    for i, claim in enumerate(grid.get("claims") or []):
+        check_claim(claim, f"{path}, claims[{i}]")
     grid["path"] = Path(path)
     return grid
+
+
+def check_claim(claim: Any, where: str) -> None:
+    """A claim of a grid file (see the module's docstring), its keys and values checked."""
+    if not isinstance(claim, dict):
+        raise GridError(f"{where}: a claim is a mapping of {', '.join(sorted(CLAIM_KEYS))}")
+    unknown = sorted(set(claim) - CLAIM_KEYS)
+    if unknown:
+        raise GridError(f"{where}: unknown key {', '.join(unknown)} (a claim takes {', '.join(sorted(CLAIM_KEYS))})")
+    missing = sorted({"name", "tasks", "x", "y", "seeds"} - set(claim))
+    if missing:
+        raise GridError(f"{where}: missing {', '.join(missing)}")
+    for side in ("x", "y"):
+        value = claim[side]
+        if not (isinstance(value, list) and len(value) == 2 and isinstance(value[0], str)
+                and (value[1] is None or isinstance(value[1], int))):  # fmt: skip
+            raise GridError(f"{where}: {side} is [configuration, budget set] (the budget null for SAC), got {value!r}")
+    if not all(isinstance(task, str) for task in as_list(claim["tasks"], where, "tasks")):
+        raise GridError(f"{where}: tasks is a list of task names, got {claim['tasks']!r}")
+    metric = claim.get("metric", "return")
+    if metric not in CLAIM_METRICS:
+        raise GridError(f"{where}: metric must be one of {', '.join(CLAIM_METRICS)}, got {metric!r}")
+    if metric == "return" and not isinstance(claim.get("p"), (int, float)):
+        raise GridError(f"{where}: a claim on the return needs p, the least P(X > Y) that holds")
+    if metric == "last_corr" and ({"p", "lower"} & set(claim)):
+        raise GridError(f"{where}: a claim on last_corr compares the means; it takes no p or lower")
+    for key in ("p", "lower"):
+        if key in claim and not (isinstance(claim[key], (int, float)) and 0 <= claim[key] <= 1):
+            raise GridError(f"{where}: {key} is a probability between 0 and 1, got {claim[key]!r}")
+    if not (isinstance(claim["seeds"], int) and claim["seeds"] >= 2):
+        raise GridError(f"{where}: seeds is the number of finished seeds each arm needs (at least 2), got {claim['seeds']!r}")
 
 
 def configuration(label: str, variants: dict[str, dict[str, Any]], where: str) -> dict[str, Any]:

@@ -36,7 +36,7 @@ MIN_SEEDS = 3
 
 def finished_runs(grid_file: Path) -> dict[str, dict[int, dict[str, Any]]]:
     """{configuration: {seed: {"seconds", "asked", "steps_awaiting", "return", "final_return"}}} of a grid's finished runs."""
-    rows, _ = results_page.collect([grid_file])
+    rows, _, _ = results_page.collect([grid_file])
     table: dict[str, dict[int, dict[str, Any]]] = {}
     for row in rows.values():
         for spec in row["specs"]:
@@ -130,7 +130,7 @@ def markdown(data: dict[str, Any]) -> str:
 
 def main() -> None:
     pace_runs, noise_runs = finished_runs(PACE_GRID), finished_runs(NOISE_GRID)
-    oracle_rows, _ = results_page.collect([ORACLE_GRID])
+    oracle_rows, _, _ = results_page.collect([ORACLE_GRID])
     oracle = [float(v) for row in oracle_rows.values() if row["configuration"] == "pebble"
               for v in plot.primary_returns(results_page.runs_of(row))]  # fmt: skip
     data = {

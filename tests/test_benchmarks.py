@@ -598,7 +598,7 @@ def test_results_json_holds_every_run_of_the_grid_files(page):
     """The data file counts exactly the committed runs of the grid files (their final returns and the budgets they
     asked, seed by seed): a run added, removed or re-run without re-making the page fails here."""
     data = json.loads(page.RESULTS.read_text())
-    rows, _ = page.collect(sorted(page.GRIDS.glob("*.yml")))
+    rows, _, _ = page.collect(sorted(page.GRIDS.glob("*.yml")))
     recorded = {(row["task"], row["configuration"], row["feedback"], row["ratio"]): row for rows_ in data["tasks"].values()
                 for row in rows_}  # fmt: skip
     assert set(recorded) == set(rows)
@@ -780,6 +780,89 @@ def test_p_and_the_mann_whitney_p_agree_in_direction_and_flip_with_the_arms(page
     tables = page.render_tables(pair_of_rows(page, tmp_path / "mixed", pebble=list(y[:5]), pride=list(x[:5])))
     entry = page.improvement(x[:5], y[:5])
     assert f"| {page.p_text({**entry, 'code_differs': False})} | {entry['mann_whitney_p']:.3f} |" in tables
+
+
+CLAIMS = """claims:
+  - {name: better, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.75, lower: 0.5, seeds: 5}
+  - {name: r-hat, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], metric: last_corr, seeds: 5}
+"""
+
+
+def claims_of(page, tmp_path, pebble: list[float], pride: list[float], corr: tuple[float, float] = (0.5, 0.4)) -> dict:
+    """results.json's data of PAIR_GRID with CLAIMS, PEBBLE's and PRIDE's runs ending at these returns and each run's
+    last corr(r̂, r) at ``corr`` (PRIDE's, PEBBLE's)."""
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    path = write_grid(tmp_path, CLAIMS + PAIR_GRID)
+    for seed, (a, b) in enumerate(zip(pebble, pride, strict=True)):
+        for algo, primary, last in (("pebble", a, corr[1]), ("pride", b, corr[0])):
+            write_coded_run(tmp_path / "runs", algo, seed, primary, "a")
+            folder = tmp_path / "runs" / f"{algo}_walker-walk_s{seed}_fb400{'_u0.5' if algo == 'pride' else ''}"
+            (folder / "progress.csv").write_text(f"reward_model/true_reward_corr\n0.1\n{last}\n")
+    return page.recount([path], tmp_path / "runs")
+
+
+def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, tmp_path):
+    """A grid file's claims are read on the runs by the rules they state: a clear lead holds; the same runs with the
+    arms swapped do not; until each arm has its seeds there is no verdict, only what the runs read so far. The claims'
+    table goes into each page with the claims' markers, and nowhere else."""
+    low, high = [300.0, 310.0, 320.0, 330.0, 340.0], [400.0, 410.0, 420.0, 430.0, 440.0]
+    ahead = claims_of(page, tmp_path / "ahead", pebble=low, pride=high)["claims"]
+    assert [(c["claim"], c["holds"]) for c in ahead] == [("better", True), ("r-hat", True)]
+    assert ahead[0]["p"] == 1.0 and ahead[0]["seeds"] == [5, 5] and ahead[1]["means"] == [0.5, 0.4]
+    behind = claims_of(page, tmp_path / "behind", pebble=high, pride=low, corr=(0.4, 0.5))["claims"]
+    assert [(c["claim"], c["holds"]) for c in behind] == [("better", False), ("r-hat", False)]
+    assert behind[0]["p"] == 0.0
+    # P at 0.76 with an interval reaching below 0.5 does not hold: both thresholds count
+    mixed = claims_of(page, tmp_path / "mixed", pebble=[300.0, 340.0, 380.0, 420.0, 460.0],
+                      pride=[345.0, 385.0, 425.0, 465.0, 500.0])  # fmt: skip
+    better = mixed["claims"][0]
+    assert better["p"] >= 0.75 and better["ci95"][0] <= 0.5 and better["holds"] is False
+    short = claims_of(page, tmp_path / "short", pebble=low[:3], pride=high[:3])
+    assert [c["holds"] for c in short["claims"]] == [None, None] and short["claims"][0]["p"] == 1.0
+    table = page.render_claims(short)
+    assert "no verdict yet: 3 and 3 of the 5 seeds" in table and "1.00 [1.00, 1.00]" in table
+    assert "**holds**" in page.render_claims({"claims": ahead})
+    assert "**does not hold**" in page.render_claims({"claims": behind})
+    assert page.render_claims({"claims": []}) == "" and "## Claims" not in page.render_page({**short, "claims": []})
+    marked, plain = tmp_path / "marked.md", tmp_path / "plain.md"
+    marked.write_text(f"a\n{page.CLAIMS_START}\nold\n{page.CLAIMS_END}\nb\n")
+    plain.write_text("no markers\n")
+    readme = tmp_path / "README.md"
+    readme.write_text(f"{page.START}\n{page.END}\n")
+    monkeypatch = pytest.MonkeyPatch()
+    with monkeypatch.context() as patch:
+        patch.setattr(page, "PAGE", tmp_path / "benchmark.md")
+        patch.setattr(page, "DOCS_PAGE", tmp_path / "docs" / "results.md")
+        page.write_all(short, readme=readme, claim_pages=[marked, plain])
+    assert marked.read_text() == f"a\n{page.CLAIMS_START}\n{table}{page.CLAIMS_END}\nb\n"
+    assert plain.read_text() == "no markers\n" and "## Claims" in (tmp_path / "benchmark.md").read_text()
+
+
+@pytest.mark.parametrize(
+    "claim, message",
+    [
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], seeds: 5}", "needs p"),
+        ("{name: a, tasks: [walker-walk], x: pride, y: [pebble, 400], p: 0.75, seeds: 5}", "x is .configuration, budget"),
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 75, seeds: 5}", "p is a probability"),
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], metric: last_corr, p: 0.5, seeds: 5}",
+         "takes no p or lower"),
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], metric: mean, p: 0.5, seeds: 5}",
+         "metric must be one of return, last_corr"),
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.5}", "missing seeds"),
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.5, seeds: 5, n: 1}", "unknown key n"),
+    ],
+)  # fmt: skip
+def test_a_bad_claim_names_the_grid_file_and_what_is_wrong(grid, page, tmp_path, claim, message):
+    path = write_grid(tmp_path, f"claims:\n  - {claim}\n" + PAIR_GRID)
+    with pytest.raises(SystemExit, match=message):
+        grid.load_grid(path)
+
+
+def test_a_claim_naming_a_row_no_grid_makes_is_named(page, tmp_path):
+    path = write_grid(tmp_path, "claims:\n  - {name: a, tasks: [walker-walk], x: [pride, 200], y: [pebble, 400], "
+                                "p: 0.5, seeds: 2}\n" + PAIR_GRID)  # fmt: skip
+    with pytest.raises(SystemExit, match=r"claim 'a': names pride at 200 queries on walker-walk, and the grid files make no"):
+        page.recount([path], tmp_path / "runs")
 
 
 def test_a_comparison_is_read_again_without_the_better_arms_best_seeds(page):
