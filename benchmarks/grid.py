@@ -110,6 +110,8 @@ def load_grid(path: Path) -> dict[str, Any]:
     if not isinstance(settings, dict) or {"max_feedback", "synthetic_ratio"} & set(settings):
         raise GridError(f"{path}: pride_settings is a mapping of PRIDE's arguments other than those its blocks set "
                         "(max_feedback, synthetic_ratio: feedback, ratios)")  # fmt: skip
+    if not isinstance(grid.get("claims", []), list):
+        raise GridError(f"{path}: claims is a list of claims, each a mapping of {', '.join(sorted(CLAIM_KEYS))}")
     for i, claim in enumerate(grid.get("claims") or []):
         check_claim(claim, f"{path}, claims[{i}]")
     grid["path"] = Path(path)
@@ -128,22 +130,24 @@ def check_claim(claim: Any, where: str) -> None:
         raise GridError(f"{where}: missing {', '.join(missing)}")
     for side in ("x", "y"):
         value = claim[side]
+        budget = value[1] if isinstance(value, list) and len(value) == 2 else None
         if not (isinstance(value, list) and len(value) == 2 and isinstance(value[0], str)
-                and (value[1] is None or isinstance(value[1], int))):  # fmt: skip
+                and (budget is None or (type(budget) is int and budget > 0))):  # fmt: skip
             raise GridError(f"{where}: {side} is [configuration, budget set] (the budget null for SAC), got {value!r}")
-    if not all(isinstance(task, str) for task in as_list(claim["tasks"], where, "tasks")):
-        raise GridError(f"{where}: tasks is a list of task names, got {claim['tasks']!r}")
+    tasks = claim["tasks"]
+    if not (isinstance(tasks, list) and tasks and all(isinstance(task, str) for task in tasks)):
+        raise GridError(f"{where}: tasks is a non-empty list of task names, got {tasks!r}")
     metric = claim.get("metric", "return")
     if metric not in CLAIM_METRICS:
         raise GridError(f"{where}: metric must be one of {', '.join(CLAIM_METRICS)}, got {metric!r}")
-    if metric == "return" and not isinstance(claim.get("p"), (int, float)):
+    if metric == "return" and "p" not in claim:
         raise GridError(f"{where}: a claim on the return needs p, the least P(X > Y) that holds")
     if metric == "last_corr" and ({"p", "lower"} & set(claim)):
         raise GridError(f"{where}: a claim on last_corr compares the means; it takes no p or lower")
     for key in ("p", "lower"):
-        if key in claim and not (isinstance(claim[key], (int, float)) and 0 <= claim[key] <= 1):
+        if key in claim and not (type(claim[key]) in (int, float) and 0 <= claim[key] <= 1):
             raise GridError(f"{where}: {key} is a probability between 0 and 1, got {claim[key]!r}")
-    if not (isinstance(claim["seeds"], int) and claim["seeds"] >= 2):
+    if not (type(claim["seeds"]) is int and claim["seeds"] >= 2):
         raise GridError(f"{where}: seeds is the number of finished seeds each arm needs (at least 2), got {claim['seeds']!r}")
 
 

@@ -484,7 +484,7 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
     }
 
 
-def claim_row(rows: dict[tuple, dict], task: str, side: list, where: str) -> tuple:
+def claim_row(rows: dict[tuple, dict], task: str, side: list[str | int | None], where: str) -> tuple:
     """The row a claim names on a task: its configuration at the budget set (``[label, budget]``); an error where the
     grid files make no such row, or several (one per u: a claim names one)."""
     label, budget = side
@@ -524,14 +524,17 @@ def verdict(claim: dict, task: str, rows: dict[tuple, dict], finals: dict[tuple,
         scores_x, scores_y = finals[key_x], finals[key_y]
         if scores_x is not None and scores_y is not None and min(len(scores_x), len(scores_y)) >= 2:
             entry.update(improvement(scores_x, scores_y))
+            p, (low, _) = bootstrap_improvement(scores_x, scores_y, RESAMPLES, BOOTSTRAP_SEED)  # unrounded, to judge
     else:
+        # a run that logged no corr(r̂, r) counts as a seed the arm lacks
+        entry["seeds"] = [0 if row["last_corr"] is None else len(row["last_corr"]["per_seed"]) for row in (x, y)]
         entry["means"] = [None if row["last_corr"] is None else row["last_corr"]["mean"] for row in (x, y)]
     if min(entry["seeds"]) < claim["seeds"]:
         entry["holds"] = None
     elif metric == "return":
-        entry["holds"] = entry["p"] >= claim["p"] and ("lower" not in claim or entry["ci95"][0] > claim["lower"])
+        entry["holds"] = p >= claim["p"] and ("lower" not in claim or low > claim["lower"])
     else:
-        entry["holds"] = None not in entry["means"] and entry["means"][0] >= entry["means"][1]
+        entry["holds"] = entry["means"][0] >= entry["means"][1]
     return entry
 
 
@@ -642,12 +645,26 @@ def render_claims(data: dict[str, Any]) -> str:
                      f"{reads} | {c['rule']} | {verdict_text} |")  # fmt: skip
     if len(lines) == 2:
         return ""
+    overall = []  # a claim of several tasks is the package's where it holds on every one of them
+    for name in dict.fromkeys(c["claim"] for c in data["claims"]):
+        reads = {c["task"]: c["holds"] for c in data["claims"] if c["claim"] == name}
+        if len(reads) < 2:
+            continue
+        failed = [task for task, holds in reads.items() if holds is False]
+        if failed:
+            overall.append(f"- {name}: **does not hold** (not on {enumerate_names(failed)})")
+        elif None in reads.values():
+            overall.append(
+                f"- {name}: no verdict yet (no verdict on {enumerate_names([t for t, h in reads.items() if h is None])})"
+            )
+        else:
+            overall.append(f"- {name}: **holds** on {enumerate_names(list(reads))}")
     note = ("Each claim states, in its grid file, a rule written before its runs, read here from the runs: P on the return "
             f"of the last {plot.LAST_EVALUATIONS} evaluations with its 95% interval, or the mean of each run's last "
             "corr(r̂, r).")  # fmt: skip
     if any(c["code_differs"] for c in data["claims"]):
         note += f" {CODE_NOTE}."
-    return "\n".join(lines) + f"\n\n{note}\n"
+    return "\n".join(lines) + "\n\n" + "".join(f"{line}\n" for line in overall) + ("\n" if overall else "") + f"{note}\n"
 
 
 def render_configurations(data: dict[str, Any], level: int = 2) -> str:
@@ -768,7 +785,7 @@ def write_all(data: dict[str, Any], readme: Path = README, claim_pages: list[Pat
     for path in CLAIM_PAGES if claim_pages is None else claim_pages:
         text = path.read_text()
         if CLAIMS_START in text or CLAIMS_END in text:
-            table = render_claims(data) or "No claim has its runs yet.\n"
+            table = render_claims(data) or "No grid file states a claim.\n"
             path.write_text(replace_block(text, table, relative(path), CLAIMS_START, CLAIMS_END))
 
 

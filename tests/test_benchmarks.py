@@ -824,6 +824,21 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     assert "**holds**" in page.render_claims({"claims": ahead})
     assert "**does not hold**" in page.render_claims({"claims": behind})
     assert page.render_claims({"claims": []}) == "" and "## Claims" not in page.render_page({**short, "claims": []})
+    # a run that logged no corr(r̂, r) is a seed its arm lacks: no verdict on r̂, whatever the others read
+    (tmp_path / "ahead" / "runs" / "pride_walker-walk_s4_fb400_u0.5" / "progress.csv").write_text("step\n1\n")
+    r_hat = page.recount([tmp_path / "ahead" / "grid.yml"], tmp_path / "ahead" / "runs")["claims"][1]
+    assert r_hat["seeds"] == [4, 5] and r_hat["holds"] is None
+    # a claim of two tasks holds only where it holds on both
+    on = {"x": "x", "y": "y", "seeds": [5, 5], "needs_seeds": 5, "rule": "r", "metric": "return", "p": 1.0,
+          "ci95": [1.0, 1.0], "code_differs": False}  # fmt: skip
+    walker = {**on, "claim": "c", "task": "walker-walk", "holds": True}
+
+    def overall(cheetah_holds: bool | None) -> str:
+        return page.render_claims({"claims": [walker, {**on, "claim": "c", "task": "cheetah-run", "holds": cheetah_holds}]})
+
+    assert "- c: **holds** on walker-walk and cheetah-run" in overall(True)
+    assert "- c: **does not hold** (not on cheetah-run)" in overall(False)
+    assert "- c: no verdict yet (no verdict on cheetah-run)" in overall(None)
     marked, plain = tmp_path / "marked.md", tmp_path / "plain.md"
     marked.write_text(f"a\n{page.CLAIMS_START}\nold\n{page.CLAIMS_END}\nb\n")
     plain.write_text("no markers\n")
@@ -850,12 +865,17 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
          "metric must be one of return, last_corr"),
         ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.5}", "missing seeds"),
         ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.5, seeds: 5, n: 1}", "unknown key n"),
+        ("{name: a, tasks: walker-walk, x: [pride, 400], y: [pebble, 400], p: 0.5, seeds: 5}", "tasks is a non-empty list"),
+        ("{name: a, tasks: [walker-walk], x: [pride, true], y: [pebble, 400], p: 0.5, seeds: 5}", "x is .configuration"),
     ],
 )  # fmt: skip
 def test_a_bad_claim_names_the_grid_file_and_what_is_wrong(grid, page, tmp_path, claim, message):
     path = write_grid(tmp_path, f"claims:\n  - {claim}\n" + PAIR_GRID)
     with pytest.raises(SystemExit, match=message):
         grid.load_grid(path)
+    (tmp_path / "one").mkdir()
+    with pytest.raises(SystemExit, match="claims is a list of claims"):
+        grid.load_grid(write_grid(tmp_path / "one", f"claims: {claim}\n" + PAIR_GRID))
 
 
 def test_a_claim_naming_a_row_no_grid_makes_is_named(page, tmp_path):
