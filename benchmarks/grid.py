@@ -22,7 +22,7 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
         x: [rows_in_place, 200]        # a configuration and the budget it was set (null for SAC)
         y: [pebble, 400]
         metric: return                 # return (P(X > Y), its 95% interval) or last_corr (mean last corr(r̂, r))
-        p: 0.75                        # return: X holds if P(X > Y) >= p ...
+        p: 0.75                        # return: X holds if P(X > Y) >= p ... (null: reported whatever it reads)
         lower: 0.5                     # ... and the interval's lower end is above this (optional)
         seeds: 10                      # no verdict until each arm has this many finished seeds
     runs:
@@ -141,11 +141,14 @@ def check_claim(claim: Any, where: str) -> None:
     if metric not in CLAIM_METRICS:
         raise GridError(f"{where}: metric must be one of {', '.join(CLAIM_METRICS)}, got {metric!r}")
     if metric == "return" and "p" not in claim:
-        raise GridError(f"{where}: a claim on the return needs p, the least P(X > Y) that holds")
+        raise GridError(f"{where}: a claim on the return needs p, the least P(X > Y) that holds (null: no threshold, "
+                        "reported whatever it reads)")
     if metric == "last_corr" and ({"p", "lower"} & set(claim)):
         raise GridError(f"{where}: a claim on last_corr compares the means; it takes no p or lower")
+    if claim.get("p", 0) is None and "lower" in claim:
+        raise GridError(f"{where}: a reading without p (null) takes no lower either")
     for key in ("p", "lower"):
-        if key in claim and not (type(claim[key]) in (int, float) and 0 <= claim[key] <= 1):
+        if claim.get(key) is not None and not (type(claim[key]) in (int, float) and 0 <= claim[key] <= 1):
             raise GridError(f"{where}: {key} is a probability between 0 and 1, got {claim[key]!r}")
     if not (type(claim["seeds"]) is int and claim["seeds"] >= 2):
         raise GridError(f"{where}: seeds is the number of finished seeds each arm needs (at least 2), got {claim['seeds']!r}")

@@ -499,6 +499,8 @@ def rule_text(claim: dict) -> str:
     """A claim's rule as the pages write it."""
     if claim.get("metric", "return") == "last_corr":
         rule = "X's mean last corr(r̂, r) ≥ Y's"
+    elif claim["p"] is None:
+        return f"none: reported whatever it reads, {claim['seeds']} seeds each"
     else:
         rule = f"P(X > Y) ≥ {claim['p']}" + (f", lower end above {claim['lower']}" if "lower" in claim else "")
     return f"{rule}, {claim['seeds']} seeds each"
@@ -519,6 +521,7 @@ def verdict(claim: dict, task: str, rows: dict[tuple, dict], finals: dict[tuple,
         "claim": claim["name"], "task": task, "x": label_of(x), "y": label_of(y), "metric": metric,
         "rule": rule_text(claim), "needs_seeds": claim["seeds"], "seeds": [len(x["seeds"]), len(y["seeds"])],
         "code_differs": code_differs(x["code"], y["code"]), "grid": claim["grid"],
+        "reading": metric == "return" and claim["p"] is None,  # no threshold: reported whatever it reads
     }  # fmt: skip
     if metric == "return":
         scores_x, scores_y = finals[key_x], finals[key_y]
@@ -529,8 +532,8 @@ def verdict(claim: dict, task: str, rows: dict[tuple, dict], finals: dict[tuple,
         # a run that logged no corr(r̂, r) counts as a seed the arm lacks
         entry["seeds"] = [0 if row["last_corr"] is None else len(row["last_corr"]["per_seed"]) for row in (x, y)]
         entry["means"] = [None if row["last_corr"] is None else row["last_corr"]["mean"] for row in (x, y)]
-    if min(entry["seeds"]) < claim["seeds"]:
-        entry["holds"] = None
+    if min(entry["seeds"]) < claim["seeds"] or entry["reading"]:
+        entry["holds"] = None  # no verdict yet, or a reading without a threshold
     elif metric == "return":
         entry["holds"] = p >= claim["p"] and ("lower" not in claim or low > claim["lower"])
     else:
@@ -637,8 +640,10 @@ def render_claims(data: dict[str, Any]) -> str:
             reads = f"corr {means[0]} vs {means[1]}" + (f" {CODE_MARK}" if c["code_differs"] else "")
         else:
             reads = p_text(c) if "p" in c else "—"
-        if c["holds"] is None:
+        if min(c["seeds"]) < c["needs_seeds"]:
             verdict_text = f"no verdict yet: {c['seeds'][0]} and {c['seeds'][1]} of the {c['needs_seeds']} seeds"
+        elif c["holds"] is None:
+            verdict_text = "read"
         else:
             verdict_text = "**holds**" if c["holds"] else "**does not hold**"
         lines.append(f"| {c['claim']} | {c['task']} | {c['x']} | {c['y']} | {c['seeds'][0]} vs {c['seeds'][1]} | "
@@ -647,7 +652,7 @@ def render_claims(data: dict[str, Any]) -> str:
         return ""
     overall = []  # a claim of several tasks is the package's where it holds on every one of them
     for name in dict.fromkeys(c["claim"] for c in data["claims"]):
-        reads = {c["task"]: c["holds"] for c in data["claims"] if c["claim"] == name}
+        reads = {c["task"]: c["holds"] for c in data["claims"] if c["claim"] == name and not c.get("reading")}
         if len(reads) < 2:
             continue
         failed = [task for task, holds in reads.items() if holds is False]

@@ -785,6 +785,7 @@ def test_p_and_the_mann_whitney_p_agree_in_direction_and_flip_with_the_arms(page
 CLAIMS = """claims:
   - {name: better, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.75, lower: 0.5, seeds: 5}
   - {name: r-hat, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], metric: last_corr, seeds: 5}
+  - {name: share, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: null, seeds: 5}
 """
 
 
@@ -807,10 +808,13 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     table goes into each page with the claims' markers, and nowhere else."""
     low, high = [300.0, 310.0, 320.0, 330.0, 340.0], [400.0, 410.0, 420.0, 430.0, 440.0]
     ahead = claims_of(page, tmp_path / "ahead", pebble=low, pride=high)["claims"]
-    assert [(c["claim"], c["holds"]) for c in ahead] == [("better", True), ("r-hat", True)]
+    assert [(c["claim"], c["holds"]) for c in ahead] == [("better", True), ("r-hat", True), ("share", None)]
+    assert ahead[2]["p"] == 1.0 and "| 1.00 [1.00, 1.00] | none: reported whatever it reads, 5 seeds each | read |" in (
+        page.render_claims({"claims": ahead})
+    )
     assert ahead[0]["p"] == 1.0 and ahead[0]["seeds"] == [5, 5] and ahead[1]["means"] == [0.5, 0.4]
     behind = claims_of(page, tmp_path / "behind", pebble=high, pride=low, corr=(0.4, 0.5))["claims"]
-    assert [(c["claim"], c["holds"]) for c in behind] == [("better", False), ("r-hat", False)]
+    assert [(c["claim"], c["holds"]) for c in behind] == [("better", False), ("r-hat", False), ("share", None)]
     assert behind[0]["p"] == 0.0
     # P at 0.76 with an interval reaching below 0.5 does not hold: both thresholds count
     mixed = claims_of(page, tmp_path / "mixed", pebble=[300.0, 340.0, 380.0, 420.0, 460.0],
@@ -818,7 +822,7 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     better = mixed["claims"][0]
     assert better["p"] >= 0.75 and better["ci95"][0] <= 0.5 and better["holds"] is False
     short = claims_of(page, tmp_path / "short", pebble=low[:3], pride=high[:3])
-    assert [c["holds"] for c in short["claims"]] == [None, None] and short["claims"][0]["p"] == 1.0
+    assert [c["holds"] for c in short["claims"]] == [None] * 3 and short["claims"][0]["p"] == 1.0
     table = page.render_claims(short)
     assert "no verdict yet: 3 and 3 of the 5 seeds" in table and "1.00 [1.00, 1.00]" in table
     assert "**holds**" in page.render_claims({"claims": ahead})
@@ -829,7 +833,7 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     r_hat = page.recount([tmp_path / "ahead" / "grid.yml"], tmp_path / "ahead" / "runs")["claims"][1]
     assert r_hat["seeds"] == [4, 5] and r_hat["holds"] is None
     # a claim of two tasks holds only where it holds on both
-    on = {"x": "x", "y": "y", "seeds": [5, 5], "needs_seeds": 5, "rule": "r", "metric": "return", "p": 1.0,
+    on = {"x": "x", "y": "y", "seeds": [5, 5], "needs_seeds": 5, "rule": "r", "metric": "return", "p": 1.0, "reading": False,
           "ci95": [1.0, 1.0], "code_differs": False}  # fmt: skip
     walker = {**on, "claim": "c", "task": "walker-walk", "holds": True}
 
@@ -866,6 +870,7 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
         ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.5}", "missing seeds"),
         ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: 0.5, seeds: 5, n: 1}", "unknown key n"),
         ("{name: a, tasks: walker-walk, x: [pride, 400], y: [pebble, 400], p: 0.5, seeds: 5}", "tasks is a non-empty list"),
+        ("{name: a, tasks: [walker-walk], x: [pride, 400], y: [pebble, 400], p: null, lower: 0.5, seeds: 5}", "no lower"),
         ("{name: a, tasks: [walker-walk], x: [pride, true], y: [pebble, 400], p: 0.5, seeds: 5}", "x is .configuration"),
     ],
 )  # fmt: skip
