@@ -641,7 +641,8 @@ def render_claims(data: dict[str, Any]) -> str:
         else:
             reads = p_text(c) if "p" in c else "—"
         if min(c["seeds"]) < c["needs_seeds"]:
-            verdict_text = f"no verdict yet: {c['seeds'][0]} and {c['seeds'][1]} of the {c['needs_seeds']} seeds"
+            so_far = "so far" if c.get("reading") else "no verdict yet"
+            verdict_text = f"{so_far}: {c['seeds'][0]} and {c['seeds'][1]} of the {c['needs_seeds']} seeds"
         elif c["holds"] is None:
             verdict_text = "read"
         else:
