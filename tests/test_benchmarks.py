@@ -280,7 +280,8 @@ def test_every_variant_is_well_formed_and_every_committed_grid_file_expands():
     variants = grid.run.load_variants("cpu")
     assert {"rows_in_place", "rows_on_top", "paper", "pebble_utd2"} <= set(variants)
     assert variants["rows_in_place"]["tag"] == "faithful_steps4000" and variants["paper"]["tag"] == "paper"
-    files = sorted((ROOT / "benchmarks" / "grids").glob("*.yml")) + sorted((ROOT / "benchmarks" / "grids").glob("pending/*.yml"))
+    grids = ROOT / "benchmarks" / "grids"
+    files = sorted(grids.glob("*.yml")) + sorted(grids.glob("pending/*.yml"))
     assert files
     for path in files:
         assert grid.expand(grid.load_grid(path)), path
