@@ -3,6 +3,7 @@ The results page, generated from the committed runs of the grid files (``benchma
 
     python benchmarks/results_page.py                 # recount from the run folders and write every file below
     python benchmarks/results_page.py --from-json     # re-render the pages from results.json (no recount)
+    python benchmarks/results_page.py --grids benchmarks/grids/pending/x.yml --print   # a grid's tables so far, written nowhere
 
 Every number shown anywhere comes from one data file, ``benchmarks/results/results.json``, written here from the run
 folders with ``plot.py``'s statistics (the primary return: the mean of each run's last three evaluations, mean ± std
@@ -799,6 +800,8 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--grids", type=Path, nargs="+", default=None, help="grid files (default: benchmarks/grids/*.yml)")
     parser.add_argument("--from-json", action="store_true", help="re-render the pages from results.json, no recount")
+    parser.add_argument("--print", action="store_true", help="print the tables and claims, write no file (a grid's "
+                        "runs so far, e.g. one waiting in pending/)")  # fmt: skip
     args = parser.parse_args()
     if args.from_json:
         data = json.loads(RESULTS.read_text())
@@ -806,6 +809,9 @@ def main() -> None:
         files = args.grids or sorted(GRIDS.glob("*.yml"))
         summary_first = sorted(files, key=lambda path: not grid.load_grid(path).get("summary"))
         data = recount(summary_first)
+        if args.print:
+            print(render_tables(data) + claims_section(data, level=2))
+            return
         RESULTS.write_text(json.dumps(data, indent=1) + "\n")
     write_all(data)
     for folder in uncounted_runs(sorted(GRIDS.glob("*.yml"))):

@@ -1008,3 +1008,15 @@ def test_each_rows_last_corr_is_its_runs_last_logged_correlation(page):
     assert row["last_corr"]["per_seed"] == [round(value, 3) for value in recounted]
     sac = next(r for r in data["tasks"]["walker-walk"] if r["algo"] == "sac")
     assert sac["last_corr"] is None  # SAC learns no r̂
+
+
+def test_print_shows_a_grids_tables_and_claims_and_writes_nothing(page, tmp_path, monkeypatch, capsys):
+    """``--grids … --print``: a grid's rows and claims as its runs read so far (one waiting in pending/), no file
+    written."""
+    path = write_grid(tmp_path, CLAIMS + PAIR_GRID.replace("seeds: 0-4", "seeds: 0-1"))
+    written = {file: file.stat().st_mtime_ns for file in (page.RESULTS, page.PAGE, page.README)}
+    monkeypatch.setattr(sys, "argv", ["results_page.py", "--grids", str(path), "--print"])
+    page.main()
+    shown = capsys.readouterr().out
+    assert "## walker-walk" in shown and "## Claims" in shown and "| better | walker-walk |" in shown
+    assert {file: file.stat().st_mtime_ns for file in written} == written
