@@ -141,8 +141,10 @@ def check_claim(claim: Any, where: str) -> None:
     if metric not in CLAIM_METRICS:
         raise GridError(f"{where}: metric must be one of {', '.join(CLAIM_METRICS)}, got {metric!r}")
     if metric == "return" and "p" not in claim:
-        raise GridError(f"{where}: a claim on the return needs p, the least P(X > Y) that holds (null: no threshold, "
-                        "reported whatever it reads)")
+        raise GridError(
+            f"{where}: a claim on the return needs p, the least P(X > Y) that holds (null: no threshold, "
+            "reported whatever it reads)"
+        )
     if metric == "last_corr" and ({"p", "lower"} & set(claim)):
         raise GridError(f"{where}: a claim on last_corr compares the means; it takes no p or lower")
     if claim.get("p", 0) is None and "lower" in claim:

@@ -27,7 +27,7 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np
 import torch as th
-from run import load_variants, merge, parse_overrides, provenance
+from run import load_variants, merge, parse_overrides, provenance, utc_now
 from stable_baselines3 import SAC
 
 import sb3_pride
@@ -155,6 +155,7 @@ def main() -> None:
     if args.timesteps is None:
         args.timesteps = tier_timesteps(args.env) if args.as_tier else 15_000
 
+    version, started = provenance(), utc_now()  # the code timed, as it was when the timing began
     results: dict[str, list[dict]] = defaultdict(list)
     for repeat in range(args.repeats):
         for algo in algos:  # a variant's label runs its algorithm with its settings changed
@@ -170,7 +171,8 @@ def main() -> None:
         {name: merge(tier_kwargs(algo, args.env, args.as_tier), changed) for name, (algo, changed) in variants.items()}
     )
     report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "as_tier": args.as_tier,
-              "seed": args.seed, "version": provenance(), "kwargs": kwargs, "runs": results, "medians": medians}  # fmt: skip
+              "seed": args.seed, "version": version, "started": started, "ended": utc_now(), "kwargs": kwargs, "runs": results,
+              "medians": medians}  # fmt: skip
     for algo, median in medians.items():
         line = f"{algo:16s} {median['seconds']:7.1f} s"
         for base in ("sac", "pebble"):

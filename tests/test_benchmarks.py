@@ -1020,3 +1020,16 @@ def test_print_shows_a_grids_tables_and_claims_and_writes_nothing(page, tmp_path
     shown = capsys.readouterr().out
     assert "## walker-walk" in shown and "## Claims" in shown and "| better | walker-walk |" in shown
     assert {file: file.stat().st_mtime_ns for file in written} == written
+
+
+def test_speed_records_the_code_it_timed_and_when(monkeypatch, tmp_path):
+    """speed.py's --out file holds the code of sb3_pride/ read when the timing began, and its start and end (UTC)."""
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    speed = load_script("speed")
+    out = tmp_path / "speed.json"
+    monkeypatch.setattr(sys, "argv", ["speed.py", "--algos", "sac", "--timesteps", "200", "--repeats", "1", "--out", str(out)])
+    speed.main()
+    report = json.loads(out.read_text())
+    assert report["started"] <= report["ended"] and report["started"].endswith("+00:00")
+    assert set(report["version"]) >= {"sb3_pride", "commit", "code_tree", "code_dirty"}
+    assert len(report["runs"]["sac"]) == 1
