@@ -654,18 +654,18 @@ def render_claims(data: dict[str, Any]) -> str:
         return ""
     overall = []  # a claim of several tasks is the package's where it holds on every one of them
     for name in dict.fromkeys(c["claim"] for c in data["claims"]):
-        reads = {c["task"]: c["holds"] for c in data["claims"] if c["claim"] == name and not c.get("reading")}
-        if len(reads) < 2:
+        by_task = {c["task"]: c["holds"] for c in data["claims"] if c["claim"] == name and not c.get("reading")}
+        if len(by_task) < 2:
             continue
-        failed = [task for task, holds in reads.items() if holds is False]
+        failed = [task for task, holds in by_task.items() if holds is False]
         if failed:
             overall.append(f"- {name}: **does not hold** (not on {enumerate_names(failed)})")
-        elif None in reads.values():
+        elif None in by_task.values():
             overall.append(
-                f"- {name}: no verdict yet (no verdict on {enumerate_names([t for t, h in reads.items() if h is None])})"
+                f"- {name}: no verdict yet (no verdict on {enumerate_names([t for t, h in by_task.items() if h is None])})"
             )
         else:
-            overall.append(f"- {name}: **holds** on {enumerate_names(list(reads))}")
+            overall.append(f"- {name}: **holds** on {enumerate_names(list(by_task))}")
     note = ("Each claim states, in its grid file, a rule written before its runs, read here from the runs: P on the return "
             f"of the last {plot.LAST_EVALUATIONS} evaluations with its 95% interval, or the mean of each run's last "
             "corr(r̂, r).")  # fmt: skip
