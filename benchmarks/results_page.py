@@ -354,6 +354,13 @@ def mann_whitney_p(x: np.ndarray, y: np.ndarray) -> float:
     return float(stats.mannwhitneyu(x, y, alternative="greater").pvalue)
 
 
+def rounded(x: np.ndarray, y: np.ndarray, p: float, interval: list[float]) -> dict[str, Any]:
+    """A comparison's entry as ``results.json`` keeps it: P and its interval to four decimals, the Mann–Whitney p beside
+    them, the seeds of each side."""
+    return {"p": round(p, 4), "ci95": [round(bound, 4) for bound in interval],
+            "mann_whitney_p": float(f"{mann_whitney_p(x, y):.4g}"), "seeds": [len(x), len(y)]}  # fmt: skip
+
+
 def improvement(x: np.ndarray, y: np.ndarray, seeds_x: list[int] | None = None, reps: int = RESAMPLES,
                 seed: int = BOOTSTRAP_SEED) -> dict[str, Any]:  # fmt: skip
     """
@@ -364,9 +371,7 @@ def improvement(x: np.ndarray, y: np.ndarray, seeds_x: list[int] | None = None, 
     read so without them.
     """
     x, y = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
-    p, interval = bootstrap_improvement(x, y, reps, seed)
-    entry: dict[str, Any] = {"p": round(p, 4), "ci95": [round(bound, 4) for bound in interval],
-                             "mann_whitney_p": float(f"{mann_whitney_p(x, y):.4g}"), "seeds": [len(x), len(y)]}  # fmt: skip
+    entry = rounded(x, y, *bootstrap_improvement(x, y, reps, seed))
     if seeds_x is None:
         return entry
     best_first = np.argsort(-x, kind="stable")
@@ -527,8 +532,9 @@ def verdict(claim: dict, task: str, rows: dict[tuple, dict], finals: dict[tuple,
     if metric == "return":
         scores_x, scores_y = finals[key_x], finals[key_y]
         if scores_x is not None and scores_y is not None and min(len(scores_x), len(scores_y)) >= 2:
-            entry.update(improvement(scores_x, scores_y))
-            p, (low, _) = bootstrap_improvement(scores_x, scores_y, RESAMPLES, BOOTSTRAP_SEED)  # unrounded, to judge
+            p, interval = bootstrap_improvement(scores_x, scores_y, RESAMPLES, BOOTSTRAP_SEED)  # judged unrounded
+            entry.update(rounded(scores_x, scores_y, p, interval))
+            low = interval[0]
     else:
         # a run that logged no corr(r̂, r) counts as a seed the arm lacks
         entry["seeds"] = [0 if row["last_corr"] is None else len(row["last_corr"]["per_seed"]) for row in (x, y)]

@@ -804,7 +804,7 @@ def claims_of(page, tmp_path, pebble: list[float], pride: list[float], corr: tup
     return page.recount([path], tmp_path / "runs")
 
 
-def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, tmp_path):
+def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, tmp_path, monkeypatch):
     """A grid file's claims are read on the runs by the rules they state: a clear lead holds; the same runs with the
     arms swapped do not; until each arm has its seeds there is no verdict, only what the runs read so far. The claims'
     table goes into each page with the claims' markers, and nowhere else."""
@@ -850,11 +850,9 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     plain.write_text("no markers\n")
     readme = tmp_path / "README.md"
     readme.write_text(f"{page.START}\n{page.END}\n")
-    monkeypatch = pytest.MonkeyPatch()
-    with monkeypatch.context() as patch:
-        patch.setattr(page, "PAGE", tmp_path / "benchmark.md")
-        patch.setattr(page, "DOCS_PAGE", tmp_path / "docs" / "results.md")
-        page.write_all(short, readme=readme, claim_pages=[marked, plain])
+    monkeypatch.setattr(page, "PAGE", tmp_path / "benchmark.md")
+    monkeypatch.setattr(page, "DOCS_PAGE", tmp_path / "docs" / "results.md")
+    page.write_all(short, readme=readme, claim_pages=[marked, plain])
     assert marked.read_text() == f"a\n{page.CLAIMS_START}\n{table}{page.CLAIMS_END}\nb\n"
     assert plain.read_text() == "no markers\n" and "## Claims" in (tmp_path / "benchmark.md").read_text()
 
