@@ -804,11 +804,16 @@ def write_all(data: dict[str, Any], readme: Path = README, claim_pages: list[Pat
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--grids", type=Path, nargs="+", default=None, help="grid files (default: benchmarks/grids/*.yml)")
+    parser.add_argument("--grids", type=Path, nargs="+", default=None, help="grid files to print (with --print; "
+                        "the pages are written from benchmarks/grids/*.yml)")  # fmt: skip
     parser.add_argument("--from-json", action="store_true", help="re-render the pages from results.json, no recount")
     parser.add_argument("--print", action="store_true", help="print the tables and claims, write no file (a grid's "
                         "runs so far, e.g. one waiting in pending/)")  # fmt: skip
     args = parser.parse_args()
+    if args.grids and not args.print:
+        # The pages and results.json hold every grid; written from a subset they would lose the others' rows.
+        parser.error("--grids needs --print: the pages are written from every grid file, never from a subset "
+                     "(leave --grids out to write them)")  # fmt: skip
     if args.from_json:
         data = json.loads(RESULTS.read_text())
     else:

@@ -1020,6 +1020,17 @@ def test_print_shows_a_grids_tables_and_claims_and_writes_nothing(page, tmp_path
     assert {file: file.stat().st_mtime_ns for file in written} == written
 
 
+def test_grids_without_print_is_refused_and_writes_nothing(page, tmp_path, monkeypatch, capsys):
+    """The pages hold every grid's rows: ``--grids`` alone would write them from a subset, so it is refused."""
+    path = write_grid(tmp_path, CLAIMS + PAIR_GRID.replace("seeds: 0-4", "seeds: 0-1"))
+    written = {file: file.stat().st_mtime_ns for file in (page.RESULTS, page.PAGE, page.README)}
+    monkeypatch.setattr(sys, "argv", ["results_page.py", "--grids", str(path)])
+    with pytest.raises(SystemExit):
+        page.main()
+    assert "--grids needs --print" in capsys.readouterr().err
+    assert {file: file.stat().st_mtime_ns for file in written} == written
+
+
 def test_speed_records_the_code_it_timed_and_when(monkeypatch, tmp_path):
     """speed.py's --out file holds the code of sb3_pride/ read when the timing began, and its start and end (UTC)."""
     monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
