@@ -525,6 +525,7 @@ def verdict(claim: dict, task: str, rows: dict[tuple, dict], finals: dict[tuple,
     metric = claim.get("metric", "return")
     entry: dict[str, Any] = {
         "claim": claim["name"], "task": task, "x": label_of(x), "y": label_of(y), "metric": metric,
+        "configurations": [x["configuration"], y["configuration"]],
         "rule": rule_text(claim), "needs_seeds": claim["seeds"], "seeds": [len(x["seeds"]), len(y["seeds"])],
         "code_differs": code_differs(x["code"], y["code"]), "grid": claim["grid"],
         "reading": metric == "return" and claim["p"] is None,  # no threshold: reported whatever it reads
@@ -675,6 +676,10 @@ def render_claims(data: dict[str, Any]) -> str:
     note = ("Each claim states, in its grid file, a rule written before its runs, read here from the runs: P on the return "
             f"of the last {plot.LAST_EVALUATIONS} evaluations with its 95% interval, or the mean of each run's last "
             "corr(r̂, r).")  # fmt: skip
+    described = {row["configuration"]: row["description"] for rows in data.get("tasks", {}).values() for row in rows}
+    named = dict.fromkeys(name for c in data["claims"] for name in c.get("configurations", []))
+    if any(described.get(name) for name in named):
+        note += " X and Y: " + "; ".join(f"`{name}`, {described[name]}" for name in named if described.get(name)) + "."
     if any(c["code_differs"] for c in data["claims"]):
         note += f" {CODE_NOTE}."
     return "\n".join(lines) + "\n\n" + "".join(f"{line}\n" for line in overall) + ("\n" if overall else "") + f"{note}\n"

@@ -830,6 +830,15 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     assert "**holds**" in page.render_claims({"claims": ahead})
     assert "**does not hold**" in page.render_claims({"claims": behind})
     assert page.render_claims({"claims": []}) == "" and "## Claims" not in page.render_page({**short, "claims": []})
+    # the configurations a claim names are described beneath the table, those with no description left out
+    described = {
+        "walker-walk": [
+            {"configuration": "pride", "description": "PRIDE as set"},
+            {"configuration": "pebble", "description": ""},
+        ]
+    }
+    legend = page.render_claims({**short, "tasks": described})
+    assert "X and Y: `pride`, PRIDE as set." in legend and "`pebble`" not in legend.split("X and Y:")[1]
     # a run that logged no corr(r̂, r) is a seed its arm lacks: no verdict on r̂, whatever the others read
     (tmp_path / "ahead" / "runs" / "pride_walker-walk_s4_fb400_u0.5" / "progress.csv").write_text("step\n1\n")
     r_hat = page.recount([tmp_path / "ahead" / "grid.yml"], tmp_path / "ahead" / "runs")["claims"][1]
