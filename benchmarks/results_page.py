@@ -639,6 +639,11 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
     return "\n".join(lines).strip("\n") + "\n"
 
 
+def descriptions(data: dict[str, Any]) -> dict[str, str]:
+    """Each configuration's description (its entry in ``variants.yml``; "" for plain algorithms), from the rows."""
+    return {row["configuration"]: row["description"] for rows in data.get("tasks", {}).values() for row in rows}
+
+
 def render_claims(data: dict[str, Any]) -> str:
     """The claims of the grid files, each read on each of its tasks by its rule ("" where there are none)."""
     lines = ["| claim | task | X | Y | seeds | reads | rule | verdict |", "|---|---|---|---|---|---|---|---|"]
@@ -676,7 +681,7 @@ def render_claims(data: dict[str, Any]) -> str:
     note = ("Each claim states, in its grid file, a rule written before its runs, read here from the runs: P on the return "
             f"of the last {plot.LAST_EVALUATIONS} evaluations with its 95% interval, or the mean of each run's last "
             "corr(r̂, r).")  # fmt: skip
-    described = {row["configuration"]: row["description"] for rows in data.get("tasks", {}).values() for row in rows}
+    described = descriptions(data)
     named = dict.fromkeys(name for c in data["claims"] for name in c.get("configurations", []))
     if any(described.get(name) for name in named):
         note += " X and Y: " + "; ".join(f"`{name}`, {described[name]}" for name in named if described.get(name)) + "."
@@ -687,7 +692,7 @@ def render_claims(data: dict[str, Any]) -> str:
 
 def render_configurations(data: dict[str, Any], level: int = 2) -> str:
     """What each variant label of the tables is (its description in ``variants.yml``)."""
-    described = {row["configuration"]: row["description"] for rows in data["tasks"].values() for row in rows}
+    described = descriptions(data)
     lines = ["", f"{'#' * level} Configurations", "",
              "Plain `pebble`, `pride` and `sac` run the task's entry of `hyperparams/cpu/<algo>.yml`; every other label "
              "is a variant of `hyperparams/cpu/variants.yml` (its settings on top of that entry):", ""]  # fmt: skip
