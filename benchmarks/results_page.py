@@ -657,7 +657,7 @@ def render_claims(data: dict[str, Any]) -> str:
             so_far = "so far" if c.get("reading") else "no verdict yet"
             verdict_text = f"{so_far}: {c['seeds'][0]} and {c['seeds'][1]} of the {c['needs_seeds']} seeds"
         elif c["holds"] is None:
-            verdict_text = "read"
+            verdict_text = "reported: all its seeds are in"
         else:
             verdict_text = "**holds**" if c["holds"] else "**does not hold**"
         lines.append(f"| {c['claim']} | {c['task']} | {c['x']} | {c['y']} | {c['seeds'][0]} vs {c['seeds'][1]} | "
