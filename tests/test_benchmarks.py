@@ -811,9 +811,8 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
     low, high = [300.0, 310.0, 320.0, 330.0, 340.0], [400.0, 410.0, 420.0, 430.0, 440.0]
     ahead = claims_of(page, tmp_path / "ahead", pebble=low, pride=high)["claims"]
     assert [(c["claim"], c["holds"]) for c in ahead] == [("better", True), ("r-hat", True), ("share", None)]
-    assert ahead[2]["p"] == 1.0 and "| 1.00 [1.00, 1.00] | none: reported whatever it reads, 5 seeds each | reported: all its seeds are in |" in (
-        page.render_claims({"claims": ahead})
-    )
+    reading = "| 1.00 [1.00, 1.00] | none: reported whatever it reads, 5 seeds each | reported: all its seeds are in |"
+    assert ahead[2]["p"] == 1.0 and reading in page.render_claims({"claims": ahead})
     assert ahead[0]["p"] == 1.0 and ahead[0]["seeds"] == [5, 5] and ahead[1]["means"] == [0.5, 0.4]
     behind = claims_of(page, tmp_path / "behind", pebble=high, pride=low, corr=(0.4, 0.5))["claims"]
     assert [(c["claim"], c["holds"]) for c in behind] == [("better", False), ("r-hat", False), ("share", None)]
