@@ -671,7 +671,7 @@ def render_claims(data: dict[str, Any]) -> str:
             continue
         failed = [task for task, holds in by_task.items() if holds is False]
         if failed:
-            overall.append(f"- {name}: **does not hold** (not on {enumerate_names(failed)})")
+            overall.append(f"- {name}: **does not hold** (it fails on {enumerate_names(failed)})")
         elif None in by_task.values():
             overall.append(
                 f"- {name}: no verdict yet (no verdict on {enumerate_names([t for t, h in by_task.items() if h is None])})"

@@ -710,6 +710,31 @@ def test_a_comparison_whose_arms_ran_on_different_code_is_flagged(page, tmp_path
     assert ("aaaaaaa ×1, unrecorded ×1 |" in tables) is (None in pebble_codes)
 
 
+def test_same_seed_tells_a_repeated_run_from_one_that_parted(tmp_path, monkeypatch, capsys):
+    """Runs of the same name in two folders: the same curve reads "the same", a curve that differs at one evaluation
+    reads "parted", a run in one folder only is left out; nothing in common is refused."""
+    same_seed = load_script("same_seed")
+    write_coded_run(tmp_path / "old", "pebble", 0, 300.0, None)
+    write_coded_run(tmp_path / "old", "pebble", 1, 300.0, None)
+    write_coded_run(tmp_path / "old", "pebble", 2, 300.0, None)  # no re-run of seed 2
+    write_coded_run(tmp_path / "new", "pebble", 0, 300.0, "a")
+    write_coded_run(tmp_path / "new", "pebble", 1, 300.0, "a")
+    curve = tmp_path / "new" / "pebble_walker-walk_s1_fb400" / "curve.csv"
+    curve.write_text(curve.read_text().replace("15000,300.0", "15000,300.5"))  # the last evaluation differs
+    rows = same_seed.compare(tmp_path / "old", tmp_path / "new", "pebble_*")
+    assert [(row["name"], row["same"]) for row in rows] == [
+        ("pebble_walker-walk_s0_fb400", True),
+        ("pebble_walker-walk_s1_fb400", False),
+    ]
+    text = same_seed.render(rows, tmp_path / "old", tmp_path / "new")
+    assert "| pebble_walker-walk_s1_fb400 | parted | unrecorded / unrecorded | unrecorded / aaaaaaa | 300.0 / 300.2 |" in text
+    assert "| walker-walk | the same | 1 | 300.0 / 300.0 |" in text
+    monkeypatch.setattr(sys, "argv", ["same_seed.py", str(tmp_path / "old"), str(tmp_path / "new"), "--pattern", "sac_*"])
+    with pytest.raises(SystemExit):
+        same_seed.main()
+    assert "no finished run named 'sac_*' is in both" in capsys.readouterr().err
+
+
 def test_every_run_folder_is_counted_by_a_row_or_archived(page, tmp_path):
     """Each run in benchmarks/results/runs/ is counted in a row of a grid file (or was moved to the archive with a
     line saying why); a stray folder beside a grid's runs is listed."""
@@ -851,7 +876,7 @@ def test_a_claim_is_read_by_its_rule_and_fails_where_the_arms_are_swapped(page, 
         return page.render_claims({"claims": [walker, {**on, "claim": "c", "task": "cheetah-run", "holds": cheetah_holds}]})
 
     assert "- c: **holds** on walker-walk and cheetah-run" in overall(True)
-    assert "- c: **does not hold** (not on cheetah-run)" in overall(False)
+    assert "- c: **does not hold** (it fails on cheetah-run)" in overall(False)
     assert "- c: no verdict yet (no verdict on cheetah-run)" in overall(None)
     marked, plain = tmp_path / "marked.md", tmp_path / "plain.md"
     marked.write_text(f"a\n{page.CLAIMS_START}\nold\n{page.CLAIMS_END}\nb\n")
