@@ -16,6 +16,8 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
     comparisons: [[rows_on_top, rows_in_place]]   # optional: P(X > Y) of two configurations of a block's task
     pride_settings: {feedback_schedule: constant}  # optional: every PRIDE run's arguments on top of the tier's YAML,
                                                    # beneath its variant's (a grid made before a default changed)
+    repeats: benchmarks/results/runs  # optional: runs of the same names it re-runs (benchmarks/grids/repeats/), to
+                                       # check with benchmarks/same_seed.py that they repeat evaluation by evaluation
     claims:                            # optional: rules written before the runs, read by benchmarks/results_page.py
       - name: half the labels
         tasks: [walker-walk]
@@ -51,7 +53,7 @@ import run
 
 GRID_KEYS = {
     "description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "pride_settings",
-    "claims", "runs",
+    "claims", "repeats", "runs",
 }  # fmt: skip
 #: what a claim of a grid file takes, and the metrics it can be read on
 CLAIM_KEYS = {"name", "tasks", "x", "y", "metric", "p", "lower", "seeds"}

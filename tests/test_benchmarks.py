@@ -281,7 +281,7 @@ def test_every_variant_is_well_formed_and_every_committed_grid_file_expands():
     assert {"rows_in_place", "rows_on_top", "paper", "pebble_utd2"} <= set(variants)
     assert variants["rows_in_place"]["tag"] == "faithful_steps4000" and variants["paper"]["tag"] == "paper"
     grids = ROOT / "benchmarks" / "grids"
-    files = sorted(grids.glob("*.yml")) + sorted(grids.glob("pending/*.yml"))
+    files = sorted(grids.glob("*.yml")) + sorted(grids.glob("pending/*.yml")) + sorted(grids.glob("repeats/*.yml"))
     assert files
     for path in files:
         assert grid.expand(grid.load_grid(path)), path
@@ -294,6 +294,22 @@ def test_the_committed_grid_files_have_all_their_runs_done(grid, capsys):
         grid.main([str(path), "--dry-run"])
         last = capsys.readouterr().out.strip().splitlines()[-1]
         assert " 0 to run" in last, f"{path.name}: {last}"
+
+
+def test_the_committed_repeats_repeat_their_runs(grid, capsys):
+    """Each grid of benchmarks/grids/repeats/ has its runs done, and each re-run's curve is the same, evaluation by
+    evaluation, as the committed run of the same name in the folder it repeats (``benchmarks/same_seed.py``)."""
+    same_seed = load_script("same_seed")
+    paths = sorted((ROOT / "benchmarks" / "grids" / "repeats").glob("*.yml"))
+    assert paths
+    for path in paths:
+        spec_grid = grid.load_grid(path)
+        grid.main([str(path), "--dry-run"])
+        assert " 0 to run" in capsys.readouterr().out.strip().splitlines()[-1], path.name
+        out = grid.out_folder(spec_grid)
+        rows = same_seed.compare(ROOT / spec_grid["repeats"], out, "*")
+        assert sorted(row["name"] for row in rows) == sorted(p.name for p in out.iterdir() if p.is_dir()), path.name
+        assert all(row["same"] for row in rows), [row["name"] for row in rows if not row["same"]]
 
 
 #: the generator's arguments before they moved into generator_kwargs: committed runs record these names
