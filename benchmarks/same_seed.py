@@ -4,8 +4,8 @@ Whether a re-run repeats a run: the runs of the same name in two run folders, ev
     python benchmarks/same_seed.py benchmarks/results/runs benchmarks/results/runs_half_the_labels_by_default \
         --pattern "pebble_*_fb400"
 
-A run is seeded end to end, so two runs of the same settings on the same code and the same kind of CPU give the same
-true return at every evaluation; on another kind of CPU the floating-point sums differ and the runs part. For every
+A run is seeded end to end, so two runs of the same settings on the same code and the same CPU model give the same
+true return at every evaluation; on another CPU model the floating-point sums differ and the runs part. For every
 name in both folders (``--pattern``: a glob on the run folder's name) it prints whether the two curves are the same,
 the CPU each recorded (``settings.json`` ``system``; "unrecorded" for runs made before it was kept), the code of
 ``sb3_pride/`` each ran on (as the results page names it) and both primary returns (the mean of the last ``plot.LAST_EVALUATIONS`` evaluations), then, per task,
