@@ -79,6 +79,9 @@ COMMIT_NOT_HERE = "unknown commit"
 CODE_MARK = "†"
 CODE_NOTE = (f"{CODE_MARK}: the two arms ran on different code of sb3_pride/, or on code not recorded (the code column: "
              "the short git tree hash of sb3_pride/ each row's runs ran on)")  # fmt: skip
+#: where a task's PEBBLE was re-run beside the arms it judges, the older rows also read against the plain PEBBLE row
+EARLIER_NOTE = ("P(> earlier PEBBLE): P against the task's plain PEBBLE row at the same budget, the reference every "
+                "older row was judged by before PEBBLE was re-run beside the arms it judges (P(> PEBBLE)).")  # fmt: skip
 
 
 def relative(path: Path) -> str:
@@ -213,6 +216,9 @@ def uncounted_runs(grid_files: list[Path], runs_folder: Path | None = None) -> l
     return sorted(folder for folder in found if folder.is_dir() and folder.resolve() not in counted)
 
 
+#: marks a comparison with the earlier PEBBLE reference (:func:`earlier_reference_key`) among the pairs
+EARLIER = "earlier reference"
+
 #: the rows run as references beside the arms they judge, on their code version: preferred to plain PEBBLE and SAC rows
 REFERENCES = {"pebble": "pebble_reference", "sac": "sac_reference"}
 
@@ -227,6 +233,17 @@ def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
         if pebbles:
             return max(pebbles, key=lambda key: key[2])
     return None
+
+
+def earlier_reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
+    """
+    Plain PEBBLE at the budget of the task's ``pebble_reference``, where the task has both: the reference its older
+    rows were judged against before PEBBLE was re-run beside the arms it judges.
+    """
+    reference = reference_key(rows, task)
+    if reference is None or reference[1] != REFERENCES["pebble"]:
+        return None
+    return next((key for key in rows if key[0] == task and key[1] == "pebble" and key[2] == reference[2]), None)
 
 
 def last_correlations(runs: list[dict]) -> np.ndarray | None:
@@ -417,6 +434,16 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         if min(len(final), len(final_reference)) >= 2:
             pair = f"{row['task']}: {label_of(row)} > {label_of(rows[reference])}"
             pairs[pair], names[pair] = [final, final_reference], (key, reference, None)
+    for key, row in rows.items():  # P against the reference a row of the task was first judged by, where it has two
+        earlier = earlier_reference_key(rows, row["task"])
+        if earlier is None or key == earlier or finals[key] is None or finals[earlier] is None:
+            continue
+        if (
+            row["specs"][0]["timesteps"] == rows[earlier]["specs"][0]["timesteps"]
+            and min(len(finals[key]), len(finals[earlier])) >= 2
+        ):
+            pair = f"{row['task']}: {label_of(row)} > {label_of(rows[earlier])}, the earlier reference"
+            pairs[pair], names[pair] = [finals[key], finals[earlier]], (key, earlier, EARLIER)
     for comparison in extra:
         matched = False
         for key_x, x in rows.items():
@@ -448,6 +475,8 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
                  "code_differs": code_differs(rows[key_x]["code"], rows[key_y]["code"])}  # fmt: skip
         if from_grid is None:
             rows[key_x]["against_pebble"] = entry
+        elif from_grid is EARLIER:
+            rows[key_x]["against_earlier_pebble"] = entry
         else:
             grids = list(dict.fromkeys([from_grid, rows[key_x]["grid"], rows[key_y]["grid"]]))  # its runs' grid files
             command = " && ".join(f"python benchmarks/grid.py {path}" for path in grids)
@@ -465,6 +494,7 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
     for key, row in sorted(rows.items(), key=lambda item: (task_order(item[0][0]), item[0] != references[item[0][0]])):
         reference = references[key[0]]
         row.setdefault("against_pebble", None)
+        row.setdefault("against_earlier_pebble", None)
         row["reference_feedback"] = rows[reference]["feedback"] if reference else None
         tasks.setdefault(row["task"], []).append({k: v for k, v in row.items() if k not in ("specs", "out")})
     return {
@@ -613,10 +643,14 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
                 "of r̂ with the true reward on its stored transitions.",
                 "",
             ]
+        earlier = any(row.get("against_earlier_pebble") for row in rows)
+        if earlier:
+            lines += [EARLIER_NOTE, ""]
         lines += [f"| configuration | queries asked | u | seeds | code | return (last {plot.LAST_EVALUATIONS} evaluations) | "
                   "share of SAC | corr(r̂, r), last | final return | area under curve | P(> PEBBLE) [95% CI] | "
-                  "Mann–Whitney p | without best 1 / 2 | reproduce |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+                  "Mann–Whitney p | without best 1 / 2 | " + ("P(> earlier PEBBLE) [95% CI] | " if earlier else "") +
+                  "reproduce |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if earlier else "")]  # fmt: skip
         for row in rows:
             entry, ratio = row["against_pebble"], cell(row["ratio"])
             area = "" if row["area_under_curve"] is None else number(row["area_under_curve"])
@@ -624,7 +658,9 @@ def render_tables(data: dict[str, Any], level: int = 2) -> str:
             lines.append(f"| {row['name']} (`{row['configuration']}`) | {budget_text(row)} | {ratio} | {len(row['seeds'])} | "
                          f"{code_text(row['code'])} | {final_text(row)} | {share_text(row)} | {corr_text(row)} | "
                          f"{final_text(row, 'final_return')} | {area} | "
-                         f"{p_text(entry)} | {mann_whitney} | {without_best_text(entry)} | `{row['command']}` |")  # fmt: skip
+                         f"{p_text(entry)} | {mann_whitney} | {without_best_text(entry)} | "
+                         + (f"{p_text(row.get('against_earlier_pebble'))} | " if earlier else "")
+                         + f"`{row['command']}` |")  # fmt: skip
         comparisons = [c for c in data["comparisons"] if c["task"] == task]
         if comparisons:
             lines += ["", "| comparison | seeds | P(X > Y) [95% CI] | Mann–Whitney p | without best 1 / 2 | reproduce |",

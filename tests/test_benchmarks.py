@@ -670,6 +670,15 @@ def test_the_references_run_beside_the_arms_come_before_older_ones(page, tmp_pat
     by_label = {row["configuration"]: row for row in rows}
     assert by_label["pebble"]["against_pebble"]["y"].startswith("pebble_reference")
     assert by_label["pebble_reference"]["share_of_ceiling"] == 0.5 and by_label["pebble"]["share_of_ceiling"] == 0.75
+    # the older rows also read against the plain PEBBLE they were first judged by, in a column of their own
+    assert by_label["pebble"]["against_earlier_pebble"] is None  # the earlier reference itself
+    assert by_label["pebble_reference"]["against_earlier_pebble"]["p"] == 0.0  # 200 against 300
+    assert by_label["sac"]["against_earlier_pebble"]["p"] == 1.0 and by_label["sac"]["against_pebble"]["p"] == 1.0
+    data = page.recount(grids, None)
+    assert "| P(> earlier PEBBLE) [95% CI] |" in page.render_tables(data) and page.EARLIER_NOTE in page.render_tables(data)
+    alone = page.recount(grids[:1], None)  # a task whose only PEBBLE is the plain one: no second reference
+    assert all(row["against_earlier_pebble"] is None for row in alone["tasks"]["walker-walk"])
+    assert "earlier PEBBLE" not in page.render_tables(alone)
 
 
 def test_the_readme_summary_needs_its_markers(page):
