@@ -434,8 +434,9 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         if min(len(final), len(final_reference)) >= 2:
             pair = f"{row['task']}: {label_of(row)} > {label_of(rows[reference])}"
             pairs[pair], names[pair] = [final, final_reference], (key, reference, None)
+    earliers = {task: earlier_reference_key(rows, task) for task, *_ in rows}
     for key, row in rows.items():  # P against the reference a row of the task was first judged by, where it has two
-        earlier = earlier_reference_key(rows, row["task"])
+        earlier = earliers[row["task"]]
         if earlier is None or key == earlier or finals[key] is None or finals[earlier] is None:
             continue
         if (

@@ -8,8 +8,9 @@ A run is seeded end to end, so two runs of the same settings on the same code an
 true return at every evaluation; on another CPU model the floating-point sums differ and the runs part. For every
 name in both folders (``--pattern``: a glob on the run folder's name) it prints whether the two curves are the same,
 the CPU each recorded (``settings.json`` ``system``; "unrecorded" for runs made before it was kept), the code of
-``sb3_pride/`` each ran on (as the results page names it) and both primary returns (the mean of the last ``plot.LAST_EVALUATIONS`` evaluations), then, per task,
-the mean primary return of each folder's runs over the seeds that repeated and over those that parted.
+``sb3_pride/`` each ran on (as the results page names it) and both primary returns (the mean of the last
+``plot.LAST_EVALUATIONS`` evaluations), then, per task, the mean primary return of each folder's runs over the seeds
+that repeated and over those that parted.
 """
 
 import argparse
@@ -53,6 +54,7 @@ def compare(first: Path, second: Path, pattern: str) -> list[dict]:
 
 
 def render(rows: list[dict], first: Path, second: Path) -> str:
+    """The rows of :func:`compare` as two Markdown tables: run by run, then per task and outcome."""
     lines = [
         f"first: `{first}`, second: `{second}`",
         "",
