@@ -421,7 +421,8 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         row["area_under_curve"] = None if not found else round(float(sum(r["curve"]["true_return"].mean() for r in found) / len(found)), 4)  # fmt: skip
         row["final_success"] = round(float(sum(successes) / len(successes)), 4) if has_success else None
         row["last_corr"] = spread(last_correlations(found))
-    pairs, names = {}, {}
+    pairs: dict[str, list[np.ndarray]] = {}
+    names: dict[str, tuple[tuple, tuple, str | None]] = {}
     for key, row in rows.items():
         reference = reference_key(rows, row["task"])
         if reference is None or key == reference:
@@ -437,14 +438,14 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
     earliers = {task: earlier_reference_key(rows, task) for task, *_ in rows}
     for key, row in rows.items():  # P against the reference a row of the task was first judged by, where it has two
         earlier = earliers[row["task"]]
-        if earlier is None or key == earlier or finals[key] is None or finals[earlier] is None:
+        if earlier is None or key == earlier:
             continue
-        if (
-            row["specs"][0]["timesteps"] == rows[earlier]["specs"][0]["timesteps"]
-            and min(len(finals[key]), len(finals[earlier])) >= 2
-        ):
+        final, final_earlier = finals[key], finals[earlier]
+        if final is None or final_earlier is None:
+            continue
+        if row["specs"][0]["timesteps"] == rows[earlier]["specs"][0]["timesteps"] and min(len(final), len(final_earlier)) >= 2:
             pair = f"{row['task']}: {label_of(row)} > {label_of(rows[earlier])}, the earlier reference"
-            pairs[pair], names[pair] = [finals[key], finals[earlier]], (key, earlier, EARLIER)
+            pairs[pair], names[pair] = [final, final_earlier], (key, earlier, EARLIER)
     for comparison in extra:
         matched = False
         for key_x, x in rows.items():
