@@ -237,13 +237,16 @@ def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
 
 def earlier_reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
     """
-    Plain PEBBLE at the budget of the task's ``pebble_reference``, where the task has both: the reference its older
-    rows were judged against before PEBBLE was re-run beside the arms it judges.
+    Plain PEBBLE at the budget of the task's ``pebble_reference``, where the task has both and older rows: the
+    reference those rows were judged against before PEBBLE was re-run beside the arms it judges. A task whose only row
+    outside the reference's grid is that PEBBLE (a check that the tier learns the task) has none.
     """
     reference = reference_key(rows, task)
     if reference is None or reference[1] != REFERENCES["pebble"]:
         return None
-    return next((key for key in rows if key[0] == task and key[1] == "pebble" and key[2] == reference[2]), None)
+    earlier = next((key for key in rows if key[0] == task and key[1] == "pebble" and key[2] == reference[2]), None)
+    older = [key for key in rows if key[0] == task and key != earlier and rows[key]["grid"] != rows[reference]["grid"]]
+    return earlier if older else None
 
 
 def last_correlations(runs: list[dict]) -> np.ndarray | None:

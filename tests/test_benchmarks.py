@@ -679,6 +679,15 @@ def test_the_references_run_beside_the_arms_come_before_older_ones(page, tmp_pat
     alone = page.recount(grids[:1], None)  # a task whose only PEBBLE is the plain one: no second reference
     assert all(row["against_earlier_pebble"] is None for row in alone["tasks"]["walker-walk"])
     assert "earlier PEBBLE" not in page.render_tables(alone)
+    check = tmp_path / "a_check"  # an older grid of plain PEBBLE alone (a check that the tier learns the task): it
+    check.mkdir()  # judged no row, so it is no earlier reference
+    block = "{configurations: [pebble], tasks: [walker-walk], seeds: 0-1, feedback: [400]}"
+    only_pebble = write_grid(check, f"out: {check / 'runs'}\nruns:\n  - {block}\n")
+    for seed in (0, 1):
+        write_coded_run(check / "runs", "pebble", seed, 300.0, "a")
+    checked = page.recount([only_pebble, grids[1]], None)
+    assert all(row["against_earlier_pebble"] is None for row in checked["tasks"]["walker-walk"])
+    assert "earlier PEBBLE" not in page.render_tables(checked)
 
 
 def test_the_readme_summary_needs_its_markers(page):
