@@ -20,8 +20,8 @@ HYPERPARAMS = hyperparams_dir()
 FILES = ["sac.yml", "pebble.yml", "pride.yml", "cpu/sac.yml", "cpu/pebble.yml", "cpu/pride.yml"]
 PEBBLE_KEYS = {"teacher", "max_feedback", "feedback_interval", "queries_per_session", "segment_length",
                "query_selection", "unsupervised_steps", "reward_kwargs"}  # fmt: skip
-TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "button-press-v3", "door-open-v3", "sweep-into-v3", "drawer-open-v3", "window-open-v3",
-         "walker-run", "finger-spin", "hopper-stand"}  # fmt: skip
+TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "button-press-v3", "door-open-v3", "sweep-into-v3", "drawer-open-v3",
+         "window-open-v3", "walker-run", "finger-spin", "hopper-stand"}  # fmt: skip
 #: tiny settings for CLI runs of a few hundred steps
 TINY = (
     "learning_starts:100 unsupervised_steps:100 feedback_interval:200 queries_per_session:10 max_feedback:30 "
