@@ -424,31 +424,23 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         row["area_under_curve"] = None if not found else round(float(sum(r["curve"]["true_return"].mean() for r in found) / len(found)), 4)  # fmt: skip
         row["final_success"] = round(float(sum(successes) / len(successes)), 4) if has_success else None
         row["last_corr"] = spread(last_correlations(found))
+    tasks_found = dict.fromkeys(key[0] for key in rows)
+    references = {task: reference_key(rows, task) for task in tasks_found}
+    earliers = {task: earlier_reference_key(rows, task) for task in tasks_found}
     pairs: dict[str, list[np.ndarray]] = {}
     names: dict[str, tuple[tuple, tuple, str | None]] = {}
-    for key, row in rows.items():
-        reference = reference_key(rows, row["task"])
-        if reference is None or key == reference:
-            continue
-        if row["specs"][0]["timesteps"] != rows[reference]["specs"][0]["timesteps"]:
-            continue  # runs of another length than the reference's: a P between them would say nothing
-        final, final_reference = finals[key], finals[reference]
-        if final is None or final_reference is None:
-            continue
-        if min(len(final), len(final_reference)) >= 2:
-            pair = f"{row['task']}: {label_of(row)} > {label_of(rows[reference])}"
-            pairs[pair], names[pair] = [final, final_reference], (key, reference, None)
-    earliers = {task: earlier_reference_key(rows, task) for task, *_ in rows}
-    for key, row in rows.items():  # P against the reference a row of the task was first judged by, where it has two
-        earlier = earliers[row["task"]]
-        if earlier is None or key == earlier:
-            continue
-        final, final_earlier = finals[key], finals[earlier]
-        if final is None or final_earlier is None:
-            continue
-        if row["specs"][0]["timesteps"] == rows[earlier]["specs"][0]["timesteps"] and min(len(final), len(final_earlier)) >= 2:
-            pair = f"{row['task']}: {label_of(row)} > {label_of(rows[earlier])}, the earlier reference"
-            pairs[pair], names[pair] = [final, final_earlier], (key, earlier, EARLIER)
+    # P against the task's reference, and against the reference its older rows were first judged by where it has two
+    for against, marker, suffix in ((references, None, ""), (earliers, EARLIER, ", the earlier reference")):
+        for key, row in rows.items():
+            other = against[row["task"]]
+            if other is None or key == other:
+                continue
+            if row["specs"][0]["timesteps"] != rows[other]["specs"][0]["timesteps"]:
+                continue  # runs of another length than the reference's: a P between them would say nothing
+            final, final_other = finals[key], finals[other]
+            if final is not None and final_other is not None and min(len(final), len(final_other)) >= 2:
+                pair = f"{row['task']}: {label_of(row)} > {label_of(rows[other])}{suffix}"
+                pairs[pair], names[pair] = [final, final_other], (key, other, marker)
     for comparison in extra:
         matched = False
         for key_x, x in rows.items():
@@ -494,7 +486,6 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         row["share_of_ceiling"] = None if share is None else round(float(share), 3)
     verdicts = [verdict(claim, task, rows, finals) for claim in claims for task in claim["tasks"]]
     tasks: dict[str, list[dict]] = {}
-    references = {task: reference_key(rows, task) for task, *_ in rows}
     # each task's PEBBLE reference first, then its rows in the order of the grid files
     for key, row in sorted(rows.items(), key=lambda item: (task_order(item[0][0]), item[0] != references[item[0][0]])):
         reference = references[key[0]]
