@@ -27,6 +27,11 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
         p: 0.75                        # return: X holds if P(X > Y) >= p ... (null: reported whatever it reads)
         lower: 0.5                     # ... and the interval's lower end is above this (optional)
         seeds: 10                      # no verdict until each arm has this many finished seeds
+    check:                             # optional: whether each run learns its task (a task checked before it is held
+      metric: success                  # out), read by benchmarks/results_page.py: curve.csv's true_return or success;
+      rise: 0.2                        # a run passes where it asked its whole budget and the mean of its last three
+      at_least: 0.2                    # evaluations is at least rise above its first three's, and at least at_least
+                                       # (optional); the check passes where every run of the grid passes
     runs:
       - configurations: [pebble, rows_in_place]   # a variant label of hyperparams/<tier>/variants.yml or an algo
         tasks: [walker-walk]
@@ -53,11 +58,14 @@ import run
 
 GRID_KEYS = {
     "description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "pride_settings",
-    "claims", "repeats", "runs",
+    "claims", "check", "repeats", "runs",
 }  # fmt: skip
 #: what a claim of a grid file takes, and the metrics it can be read on
 CLAIM_KEYS = {"name", "tasks", "x", "y", "metric", "p", "lower", "seeds"}
 CLAIM_METRICS = ("return", "last_corr")
+#: what a grid file's check takes, and the columns of a run's curve.csv it can be read on
+CHECK_KEYS = {"metric", "rise", "at_least"}
+CHECK_METRICS = ("true_return", "success")
 BLOCK_KEYS = {"configurations", "tasks", "seeds", "feedback", "ratios"}
 
 
@@ -116,8 +124,27 @@ def load_grid(path: Path) -> dict[str, Any]:
         raise GridError(f"{path}: claims is a list of claims, each a mapping of {', '.join(sorted(CLAIM_KEYS))}")
     for i, claim in enumerate(grid.get("claims") or []):
         check_claim(claim, f"{path}, claims[{i}]")
+    if "check" in grid:
+        check_task_check(grid["check"], f"{path}, check")
     grid["path"] = Path(path)
     return grid
+
+
+def check_task_check(check: Any, where: str) -> None:
+    """A grid file's check (see the module's docstring), its keys and values checked."""
+    if not isinstance(check, dict):
+        raise GridError(f"{where}: a check is a mapping of {', '.join(sorted(CHECK_KEYS))}, got {check!r}")
+    unknown = sorted(set(check) - CHECK_KEYS)
+    if unknown:
+        raise GridError(f"{where}: unknown key {', '.join(unknown)} (a check takes {', '.join(sorted(CHECK_KEYS))})")
+    missing = sorted({"metric", "rise"} - set(check))
+    if missing:
+        raise GridError(f"{where}: missing {', '.join(missing)}")
+    if check["metric"] not in CHECK_METRICS:
+        raise GridError(f"{where}: metric must be one of {', '.join(CHECK_METRICS)}, got {check['metric']!r}")
+    for key in ("rise", "at_least"):
+        if key in check and type(check[key]) not in (int, float):
+            raise GridError(f"{where}: {key} is a number (in the metric's units), got {check[key]!r}")
 
 
 def check_claim(claim: Any, where: str) -> None:

@@ -610,6 +610,9 @@ def test_the_generated_results_files_are_in_sync_with_results_json(page):
     assert page.DOCS_PAGE.read_text() == page.render_docs(data)
     readme = page.README.read_text()
     assert page.replace_block(readme, page.render_summary(data), "README.md") == readme
+    results_readme = (ROOT / "benchmarks/results/README.md").read_text()
+    checks = page.replace_block(results_readme, page.render_checks(data), "README.md", page.CHECKS_START, page.CHECKS_END)
+    assert checks == results_readme
 
 
 def test_results_json_holds_every_run_of_the_grid_files(page):
@@ -948,6 +951,73 @@ def test_a_bad_claim_names_the_grid_file_and_what_is_wrong(grid, page, tmp_path,
     (tmp_path / "one").mkdir()
     with pytest.raises(SystemExit, match="claims is a list of claims"):
         grid.load_grid(write_grid(tmp_path / "one", f"claims: {claim}\n" + PAIR_GRID))
+
+
+CHECK_GRID = ("check: {metric: success, rise: 0.2, at_least: 0.2}\nruns:\n  - {configurations: [pebble], "
+              "tasks: [window-open-v3], seeds: 0-1, feedback: [1200]}\n")  # fmt: skip
+
+
+def write_checked_run(folder: Path, seed: int, success: list[float], asked: int = 1200) -> None:
+    """A finished PEBBLE run on window-open set to 1200 queries, with this success rate at its evaluations."""
+    name = folder / f"pebble_window-open-v3_s{seed}_fb1200"
+    name.mkdir(parents=True)
+    settings = {"algo": "pebble", "task": "window-open-v3", "seed": seed, "feedback": 1200, "ratio": 0.5, "tag": "",
+                "version": {"commit": None, "dirty": None}}  # fmt: skip
+    (name / "settings.json").write_text(json.dumps(settings))
+    evaluations = "".join(f"{5000 * (i + 1)},{100.0 * i},{rate}\n" for i, rate in enumerate(success))
+    (name / "curve.csv").write_text("step,true_return,success\n" + evaluations)
+    (name / "result.json").write_text(json.dumps({"final_return": 0.0, "feedback_asked": asked}))
+
+
+def check_of(page, tmp_path, runs: dict[int, tuple[list[float], int]]) -> dict:
+    """The check of CHECK_GRID read on runs ``{seed: (success rates, queries asked)}``."""
+    tmp_path.mkdir(parents=True)
+    path = write_grid(tmp_path, CHECK_GRID)
+    for seed, (success, asked) in runs.items():
+        write_checked_run(tmp_path / "runs", seed, success, asked)
+    (check,) = page.recount([path], tmp_path / "runs")["checks"]
+    return check
+
+
+def test_a_check_is_read_on_each_run_and_fails_on_a_run_that_does_not_learn(page, tmp_path):
+    """A grid file's check passes only where every run asked its whole budget and rose by the rule (a success rate of
+    exactly 0.2 counts: the means are rounded first); one run that stays flat, or asks less, fails it; with runs still
+    to come and none failing there is no verdict. The pages show each run's read and the verdict."""
+    learns, flat = [0.0] * 9 + [0.2, 0.2, 0.2], [0.0] * 12
+    passing = check_of(page, tmp_path / "passes", {0: (learns, 1200), 1: ([0.0] * 9 + [0.4, 0.0, 0.2], 1200)})
+    assert passing["passes"] is True and [r["last"] for r in passing["runs"]] == [0.2, 0.2]
+    failing = check_of(page, tmp_path / "flat", {0: (learns, 1200), 1: (flat, 1200)})
+    assert failing["passes"] is False and [r["passes"] for r in failing["runs"]] == [True, False]
+    short = check_of(page, tmp_path / "short", {0: (learns, 1200), 1: (learns, 1100)})
+    assert short["passes"] is False and short["runs"][1]["passes"] is False
+    low = check_of(page, tmp_path / "low", {0: ([0.2] * 9 + [0.2, 0.2, 0.2], 1200), 1: (learns, 1200)})
+    assert low["passes"] is False  # at least 0.2 but no rise
+    waiting = check_of(page, tmp_path / "waiting", {0: (learns, 1200)})
+    assert waiting["passes"] is None and waiting["planned"] == 2
+    assert check_of(page, tmp_path / "waiting_flat", {1: (flat, 1200)})["passes"] is False  # decided without seed 0
+    table = page.render_checks({"checks": [passing, failing, waiting]})
+    assert "| `grid.yml` | window-open-v3 | 1 | 1200 | success rate | 0.00 | 0.00 | no |" in table
+    assert table.count("**passes** (2 of 2 runs read)") == 1 and "**fails** (2 of 2 runs read)" in table
+    assert "no verdict yet: 1 of its 2 runs are in" in table
+    assert "| 1100 (1200 set) |" in page.render_checks({"checks": [short]})
+    assert page.render_checks({"checks": []}) == "" and "## Checks" in page.render_page(
+        {**page.recount([tmp_path / "passes" / "grid.yml"], tmp_path / "passes" / "runs"), "claims": []}
+    )
+
+
+@pytest.mark.parametrize(
+    "check, message",
+    [
+        ("{metric: success}", "missing rise"),
+        ("{metric: reward, rise: 0.2}", "metric must be one of true_return, success"),
+        ("{metric: success, rise: high}", "rise is a number"),
+        ("{metric: success, rise: 0.2, last: 3}", "unknown key last"),
+        ("[success, 0.2]", "a check is a mapping"),
+    ],
+)
+def test_a_bad_check_names_the_grid_file_and_what_is_wrong(grid, tmp_path, check, message):
+    with pytest.raises(SystemExit, match=f"grid.yml, check: {message}"):
+        grid.load_grid(write_grid(tmp_path, f"check: {check}\n" + PAIR_GRID))
 
 
 def test_a_claim_naming_a_row_no_grid_makes_is_named(page, tmp_path):
