@@ -130,16 +130,21 @@ def load_grid(path: Path) -> dict[str, Any]:
     return grid
 
 
-def check_task_check(check: Any, where: str) -> None:
-    """A grid file's check (see the module's docstring), its keys and values checked."""
-    if not isinstance(check, dict):
-        raise GridError(f"{where}: a check is a mapping of {', '.join(sorted(CHECK_KEYS))}, got {check!r}")
-    unknown = sorted(set(check) - CHECK_KEYS)
+def check_keys(value: Any, where: str, what: str, keys: set[str], required: set[str]) -> None:
+    """``value`` is a mapping of ``keys`` holding every one of ``required``; else an error naming ``where``."""
+    if not isinstance(value, dict):
+        raise GridError(f"{where}: a {what} is a mapping of {', '.join(sorted(keys))}, got {value!r}")
+    unknown = sorted(set(value) - keys)
     if unknown:
-        raise GridError(f"{where}: unknown key {', '.join(unknown)} (a check takes {', '.join(sorted(CHECK_KEYS))})")
-    missing = sorted({"metric", "rise"} - set(check))
+        raise GridError(f"{where}: unknown key {', '.join(unknown)} (a {what} takes {', '.join(sorted(keys))})")
+    missing = sorted(required - set(value))
     if missing:
         raise GridError(f"{where}: missing {', '.join(missing)}")
+
+
+def check_task_check(check: Any, where: str) -> None:
+    """A grid file's check (see the module's docstring), its keys and values checked."""
+    check_keys(check, where, "check", CHECK_KEYS, {"metric", "rise"})
     if check["metric"] not in CHECK_METRICS:
         raise GridError(f"{where}: metric must be one of {', '.join(CHECK_METRICS)}, got {check['metric']!r}")
     for key in ("rise", "at_least"):
@@ -149,14 +154,7 @@ def check_task_check(check: Any, where: str) -> None:
 
 def check_claim(claim: Any, where: str) -> None:
     """A claim of a grid file (see the module's docstring), its keys and values checked."""
-    if not isinstance(claim, dict):
-        raise GridError(f"{where}: a claim is a mapping of {', '.join(sorted(CLAIM_KEYS))}")
-    unknown = sorted(set(claim) - CLAIM_KEYS)
-    if unknown:
-        raise GridError(f"{where}: unknown key {', '.join(unknown)} (a claim takes {', '.join(sorted(CLAIM_KEYS))})")
-    missing = sorted({"name", "tasks", "x", "y", "seeds"} - set(claim))
-    if missing:
-        raise GridError(f"{where}: missing {', '.join(missing)}")
+    check_keys(claim, where, "claim", CLAIM_KEYS, {"name", "tasks", "x", "y", "seeds"})
     for side in ("x", "y"):
         value = claim[side]
         budget = value[1] if isinstance(value, list) and len(value) == 2 else None
