@@ -132,6 +132,7 @@ def collect(grid_files: list[Path], runs_folder: Path | None = None) -> tuple[di
                 "feedback": key[2],
                 "ratio": key[3], "tag": spec["tag"], "grid": relative(path),
                 "command": f"python benchmarks/grid.py {relative(path)}", "summary": bool(spec_grid.get("summary")),
+                "reference": bool(spec["variant"] and variants[spec["variant"]].get("reference")),
                 "specs": [], "out": out,
             })  # fmt: skip
             row["specs"].append(spec)
@@ -221,17 +222,15 @@ def uncounted_runs(grid_files: list[Path], runs_folder: Path | None = None) -> l
 #: marks a comparison with the earlier PEBBLE reference (:func:`earlier_reference_key`) among the pairs
 EARLIER = "earlier reference"
 
-#: the rows run as references beside the arms they judge, on their code version: preferred to plain PEBBLE and SAC rows
-REFERENCES = {"pebble": "pebble_reference", "sac": "sac_reference"}
-
 
 def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
     """
     Plain PEBBLE at the task's largest budget: what every configuration of the task is compared with; the PEBBLE run
-    beside the arms it judges (``pebble_reference``) where the task has one.
+    beside the arms it judges (a variant marked ``reference: true``, e.g. ``pebble_reference``) where the task has one.
     """
-    for label in (REFERENCES["pebble"], "pebble"):
-        pebbles = [key for key in rows if key[0] == task and key[1] == label]
+    for beside in (True, False):
+        pebbles = [key for key, row in rows.items() if key[0] == task and row["algo"] == "pebble"
+                   and (row["reference"] if beside else key[1] == "pebble")]  # fmt: skip
         if pebbles:
             return max(pebbles, key=lambda key: key[2])
     return None
@@ -244,7 +243,7 @@ def earlier_reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
     outside the reference's grid is that PEBBLE (a check that the tier learns the task) has none.
     """
     reference = reference_key(rows, task)
-    if reference is None or reference[1] != REFERENCES["pebble"]:
+    if reference is None or not rows[reference]["reference"]:
         return None
     earlier = next((key for key in rows if key[0] == task and key[1] == "pebble" and key[2] == reference[2]), None)
     older = [key for key in rows if key[0] == task and key != earlier and rows[key]["grid"] != rows[reference]["grid"]]
@@ -276,7 +275,7 @@ def corr_text(row: dict) -> str:
 def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | None:
     """
     SAC on the true reward for the task, with runs of this length: the ceiling each row is a share of; the SAC run
-    beside the arms it judges (``sac_reference``) where the task has one.
+    beside the arms it judges (a variant marked ``reference: true``, e.g. ``sac_reference``) where the task has one.
     """
     sacs = [
         key
@@ -286,7 +285,7 @@ def ceiling_key(rows: dict[tuple, dict], task: str, timesteps: int) -> tuple | N
         and row["specs"][0]["timesteps"] == timesteps
         and not row["specs"][0].get("learned_reward")  # SAC on a learned r̂ is a row, not the ceiling
     ]
-    sacs.sort(key=lambda key: key[1] != REFERENCES["sac"])  # stable: otherwise the first in the grid files' order
+    sacs.sort(key=lambda key: not rows[key]["reference"])  # stable: otherwise the first in the grid files' order
     return sacs[0] if sacs else None
 
 
@@ -844,8 +843,9 @@ def reference_row(rows: list[dict]) -> dict | None:
     """A task's PEBBLE reference among its rows (plain PEBBLE at the budget the rows are compared with, the one run
     beside PRIDE's defaults first)."""
     feedback = next((row["reference_feedback"] for row in rows if row["reference_feedback"]), None)
-    for label in (REFERENCES["pebble"], "pebble"):
-        found = next((row for row in rows if row["configuration"] == label and row["feedback"] == feedback), None)
+    for beside in (True, False):
+        found = next((row for row in rows if row["algo"] == "pebble" and row["feedback"] == feedback
+                      and (row["reference"] if beside else row["configuration"] == "pebble")), None)  # fmt: skip
         if found is not None:
             return found
     return None

@@ -105,7 +105,8 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
     ``{label: {"algo", "name", "description", "overrides", "tag"}}``, the name and tag defaulting to the label ({}
     without the file), ``seconds_per_answer`` where the variant's teacher answers at a person's pace
     (``PacedTeacher``), and ``learned_reward`` where the variant's agent learns from the r̂ a run saved
-    (``VecLearnedReward``). Strings of ``overrides`` and ``learned_reward`` may name ``{out}`` (the grid's run folder),
+    (``VecLearnedReward``), ``reference: true`` where the variant is run beside the arms it judges (PEBBLE: the
+    reference its task's rows are compared with; SAC: the ceiling they are a share of). Strings of ``overrides`` and ``learned_reward`` may name ``{out}`` (the grid's run folder),
     ``{task}``, ``{feedback}``, ``{seed}`` and ``{next_seed}`` (the next seed of the grid block's seeds, cyclically).
     """
     import yaml
@@ -118,7 +119,8 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
     variants = yaml.safe_load(path.read_text()) or {}
     for label, entry in variants.items():
         unknown = sorted(
-            set(entry) - {"algo", "name", "description", "overrides", "tag", "seconds_per_answer", "learned_reward"}
+            set(entry)
+            - {"algo", "name", "description", "overrides", "tag", "seconds_per_answer", "learned_reward", "reference"}
         )
         if unknown or entry.get("algo") not in ALGOS:
             problem = f"unknown keys {unknown}" if unknown else f"algo must be one of {ALGOS}, got {entry.get('algo')!r}"

@@ -639,12 +639,42 @@ def test_each_task_opens_with_its_pebble_reference(page):
     PRIDE's defaults where the task has it); that row comes first in the tables, whichever grid file sorts first."""
     data = json.loads(page.RESULTS.read_text())
     for task, rows in data["tasks"].items():
-        for label in ("pebble_reference", "pebble"):
-            pebbles = [row for row in rows if row["configuration"] == label]
+        for beside in (True, False):
+            pebbles = [row for row in rows if row["algo"] == "pebble"
+                       and (row["reference"] if beside else row["configuration"] == "pebble")]  # fmt: skip
             if pebbles:
-                assert rows[0]["configuration"] == label, task
+                assert rows[0]["configuration"] == pebbles[0]["configuration"], task
                 assert rows[0]["feedback"] == max(row["feedback"] for row in pebbles), task
                 break
+
+
+def test_a_variant_marked_reference_judges_its_task_at_its_own_length(grid, page, tmp_path):
+    """A variant marked ``reference: true`` in variants.yml (PEBBLE and SAC run beside the arms, here at 150k steps) is
+    its task's reference and ceiling, whatever its label; a plain PEBBLE row of another length is not compared with it."""
+    for name, header, labels, returns in (
+        ("check", "", "[pebble]", {"pebble": 300.0}),
+        ("held_out", "timesteps: 150000\n", "[pebble_reference_steps150k, sac_reference_steps150k]",
+         {"pebble": 200.0, "sac": 400.0}),
+    ):  # fmt: skip
+        folder = tmp_path / name
+        folder.mkdir()
+        block = f"{{configurations: {labels}, tasks: [window-open-v3], seeds: 0-1, feedback: [1200]}}"
+        path = write_grid(folder, f"out: {folder / 'runs'}\n{header}runs:\n  - {block}\n")
+        for spec in grid.expand(grid.load_grid(path)):
+            run_folder = folder / "runs" / page.run.run_name(spec)
+            run_folder.mkdir(parents=True)
+            settings = {key: spec[key] for key in ("algo", "task", "seed", "feedback", "ratio", "tag")}
+            (run_folder / "settings.json").write_text(json.dumps(settings))
+            value = returns[spec["algo"]] + spec["seed"]
+            curve = "".join(f"{step},{value},0.0\n" for step in (5000, 10000, 15000))
+            (run_folder / "curve.csv").write_text("step,true_return,success\n" + curve)
+            (run_folder / "result.json").write_text(json.dumps({"final_return": value, "feedback_asked": spec["feedback"]}))
+    rows = page.recount([tmp_path / "check" / "grid.yml", tmp_path / "held_out" / "grid.yml"], None)["tasks"]["window-open-v3"]
+    by_label = {row["configuration"]: row for row in rows}
+    assert rows[0]["configuration"] == "pebble_reference_steps150k" and rows[0]["reference"]
+    assert by_label["pebble_reference_steps150k"]["share_of_ceiling"] == 0.501  # 200.5 over 400.5
+    assert by_label["pebble"]["against_pebble"] is None and by_label["pebble"]["share_of_ceiling"] is None  # 60k
+    assert by_label["sac_reference_steps150k"]["against_pebble"]["p"] == 1.0
 
 
 def test_the_references_run_beside_the_arms_come_before_older_ones(page, tmp_path):
