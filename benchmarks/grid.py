@@ -47,6 +47,7 @@ are outermost, across blocks too: every cell gets its first seed before any gets
 
 import argparse
 import itertools
+import math
 import os
 import sys
 from pathlib import Path
@@ -148,8 +149,11 @@ def check_task_check(check: Any, where: str) -> None:
     if check["metric"] not in CHECK_METRICS:
         raise GridError(f"{where}: metric must be one of {', '.join(CHECK_METRICS)}, got {check['metric']!r}")
     for key in ("rise", "at_least"):
-        if key in check and type(check[key]) not in (int, float):
+        if key in check and not (type(check[key]) in (int, float) and math.isfinite(check[key])):
             raise GridError(f"{where}: {key} is a number (in the metric's units), got {check[key]!r}")
+    if check["rise"] < 0:
+        raise GridError(f"{where}: rise is how far the last evaluations must rise above the first: 0 or more, "
+                        f"got {check['rise']!r}")  # fmt: skip
 
 
 def check_claim(claim: Any, where: str) -> None:

@@ -238,14 +238,17 @@ def reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
 
 def earlier_reference_key(rows: dict[tuple, dict], task: str) -> tuple | None:
     """
-    Plain PEBBLE at the budget of the task's ``pebble_reference``, where the task has both and older rows: the
-    reference those rows were judged against before PEBBLE was re-run beside the arms it judges. A task whose only row
-    outside the reference's grid is that PEBBLE (a check that the tier learns the task) has none.
+    Plain PEBBLE at the budget and run length of the task's reference run beside the arms it judges (a variant marked
+    ``reference: true``), where the task has both and older rows: the reference those rows were judged against before
+    PEBBLE was re-run beside the arms it judges. A task whose only row outside the reference's grid is that PEBBLE (a
+    check that the tier learns the task) has none.
     """
     reference = reference_key(rows, task)
     if reference is None or not rows[reference]["reference"]:
         return None
-    earlier = next((key for key in rows if key[0] == task and key[1] == "pebble" and key[2] == reference[2]), None)
+    length = rows[reference]["specs"][0]["timesteps"]
+    earlier = next((key for key, row in rows.items() if key[0] == task and key[1] == "pebble" and key[2] == reference[2]
+                    and row["specs"][0]["timesteps"] == length), None)  # fmt: skip
     older = [key for key in rows if key[0] == task and key != earlier and rows[key]["grid"] != rows[reference]["grid"]]
     return earlier if older else None
 
@@ -486,7 +489,7 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         share = None if own is None or top is None or top.mean() == 0 else own.mean() / top.mean()
         row["share_of_ceiling"] = None if share is None else round(float(share), 3)
     verdicts = [verdict(claim, task, rows, finals) for claim in claims for task in claim["tasks"]]
-    checks = [read_check(path, rows) for path in grid_files if "check" in grid.load_grid(path)]
+    checks = [read_check(path, check, rows) for path in grid_files if (check := grid.load_grid(path).get("check"))]
     tasks: dict[str, list[dict]] = {}
     # each task's PEBBLE reference first, then its rows in the order of the grid files
     for key, row in sorted(rows.items(), key=lambda item: (task_order(item[0][0]), item[0] != references[item[0][0]])):
@@ -590,22 +593,27 @@ def check_rule_text(check: dict) -> str:
     return text + (f" and at least {check['at_least']}" if "at_least" in check else "")
 
 
-def read_check(path: Path, rows: dict[tuple, dict]) -> dict[str, Any]:
+def read_check(path: Path, check: dict[str, Any], rows: dict[tuple, dict]) -> dict[str, Any]:
     """
-    A grid file's check (whether PEBBLE alone learns a task, before the task is held out) read on each of its runs: a
+    The check of the grid file ``path`` (whether PEBBLE alone learns a task, before the task is held out) read on each
+    of its runs: a
     run passes where it asked the budget it was set (``result.json``'s ``feedback_asked``) and the mean of its last
     :data:`plot.LAST_EVALUATIONS` evaluations of the check's metric is at least ``rise`` above that of its first ones,
     and at least ``at_least`` where the check sets it (both means rounded to four decimals first, as the pages show
     them: a success rate of 0.2 is not missed by a rounding error). The check ``passes`` where every run of the grid
-    is finished and passes, fails as soon as one finished run fails, and has no verdict (``None``) before.
+    is finished and passes, fails as soon as one finished run fails, and has no verdict (``None``) before. A run whose
+    curve lacks the metric, or holds fewer than twice :data:`plot.LAST_EVALUATIONS` evaluations of it, is an error.
     """
-    check = grid.load_grid(path)["check"]
     n, where = plot.LAST_EVALUATIONS, relative(path)
     read, planned = [], 0
     for row in (row for row in rows.values() if row["grid"] == where):
         planned += len(row["specs"])
         for found in runs_of(row):
-            values = np.asarray(found["curve"][check["metric"]], dtype=float)
+            names = found["curve"].dtype.names or ()
+            values = np.asarray(found["curve"][check["metric"]] if check["metric"] in names else [], dtype=float)
+            if np.isnan(values).any() or len(values) < 2 * n:
+                raise SystemExit(f"{where}: check on {check['metric']}: the run {found['folder'].name} has "
+                                 f"{int((~np.isnan(values)).sum())} evaluations of it, the check needs {2 * n} or more")  # fmt: skip
             first, last = round(float(values[:n].mean()), 4), round(float(values[-n:].mean()), 4)
             asked = found["result"].get("feedback_asked")
             passes = (row["feedback"] is None or asked == row["feedback"]) and round(last - first, 4) >= check["rise"]
@@ -629,7 +637,9 @@ def render_checks(data: dict[str, Any]) -> str:
     for check in checks:
         name = Path(check["grid"]).name
         for r in check["runs"]:
-            asked = "—" if r["set"] is None else f"{r['asked']}" + ("" if r["asked"] == r["set"] else f" ({r['set']} set)")
+            asked = (
+                "—" if r["set"] is None else f"{cell(r['asked'])}" + ("" if r["asked"] == r["set"] else f" ({r['set']} set)")
+            )
             lines.append(f"| `{name}` | {r['task']} | {r['seed']} | {asked} | {CHECK_METRIC_NAMES[check['metric']]} | "
                          f"{number(r['first'], 2)} | {number(r['last'], 2)} | {'yes' if r['passes'] else 'no'} |")  # fmt: skip
         if check["passes"] is None:
@@ -638,9 +648,9 @@ def render_checks(data: dict[str, Any]) -> str:
             runs = f"{check['planned']} run{'s' if check['planned'] != 1 else ''}"
             state = ("**passes**" if check["passes"] else "**fails**") + f" ({len(check['runs'])} of {runs} read)"
         verdicts.append(f"- `{check['grid']}`: {state}; its rule: {check['rule']}.")
-    note = (f"Each check asks whether PEBBLE alone learns a task before the task is held out, by a rule its grid file "
-            f"states, written before its runs; first {n} and last {n}: the mean of the run's first and last {n} "
-            "evaluations (5 episodes each).")  # fmt: skip
+    note = (f"Each check asks whether PEBBLE alone learns a task before the task is held out, by the rule written before "
+            f"its runs, which its grid file restates as `check:`; first {n} and last {n}: the mean of the run's first and "
+            f"last {n} evaluations (5 episodes each).")  # fmt: skip
     return "\n".join(lines) + "\n\n" + "".join(f"{line}\n" for line in verdicts) + f"\n{note}\n"
 
 
@@ -845,7 +855,7 @@ def reference_row(rows: list[dict]) -> dict | None:
     feedback = next((row["reference_feedback"] for row in rows if row["reference_feedback"]), None)
     for beside in (True, False):
         found = next((row for row in rows if row["algo"] == "pebble" and row["feedback"] == feedback
-                      and (row["reference"] if beside else row["configuration"] == "pebble")), None)  # fmt: skip
+                      and (row.get("reference") if beside else row["configuration"] == "pebble")), None)  # fmt: skip
         if found is not None:
             return found
     return None

@@ -106,8 +106,9 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
     without the file), ``seconds_per_answer`` where the variant's teacher answers at a person's pace
     (``PacedTeacher``), and ``learned_reward`` where the variant's agent learns from the r̂ a run saved
     (``VecLearnedReward``), ``reference: true`` where the variant is run beside the arms it judges (PEBBLE: the
-    reference its task's rows are compared with; SAC: the ceiling they are a share of). Strings of ``overrides`` and ``learned_reward`` may name ``{out}`` (the grid's run folder),
-    ``{task}``, ``{feedback}``, ``{seed}`` and ``{next_seed}`` (the next seed of the grid block's seeds, cyclically).
+    reference its task's rows are compared with; SAC: the ceiling they are a share of). Strings of ``overrides`` and
+    ``learned_reward`` may name ``{out}`` (the grid's run folder), ``{task}``, ``{feedback}``, ``{seed}`` and
+    ``{next_seed}`` (the next seed of the grid block's seeds, cyclically).
     """
     import yaml
 
@@ -125,6 +126,9 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
         if unknown or entry.get("algo") not in ALGOS:
             problem = f"unknown keys {unknown}" if unknown else f"algo must be one of {ALGOS}, got {entry.get('algo')!r}"
             raise SystemExit(f"{path}: variant {label!r}: {problem}")
+        if "reference" in entry and (type(entry["reference"]) is not bool or entry["algo"] == "pride"):
+            raise SystemExit(f"{path}: variant {label!r}: reference is true or false, on a pebble or sac variant (the "
+                             f"task's reference or ceiling), got {entry['reference']!r} on {entry['algo']}")  # fmt: skip
         entry.setdefault("overrides", {})
         entry.setdefault("tag", label)
         entry.setdefault("description", "")

@@ -3,6 +3,7 @@ otherwise; pooled comparisons do not depend on the order of the folders."""
 
 import importlib.util
 import json
+import re
 import os
 import sys
 from pathlib import Path
@@ -285,6 +286,17 @@ def test_every_variant_is_well_formed_and_every_committed_grid_file_expands():
     assert files
     for path in files:
         assert grid.expand(grid.load_grid(path)), path
+
+
+@pytest.mark.parametrize("entry", ["{algo: pride, reference: true}", "{algo: pebble, reference: yes please}"])
+def test_a_reference_mark_on_a_pride_variant_or_not_a_boolean_is_refused(grid, tmp_path, monkeypatch, entry):
+    """``reference`` marks PEBBLE's reference or SAC's ceiling: on a PRIDE variant, or as anything but true or false,
+    it would be ignored, so variants.yml is refused, naming the variant."""
+    (tmp_path / "cpu").mkdir()
+    (tmp_path / "cpu" / "variants.yml").write_text(f"odd: {entry}\n")
+    monkeypatch.setattr("sb3_pride.zoo.hyperparams_dir", lambda: tmp_path)
+    with pytest.raises(SystemExit, match="variant 'odd': reference is true or false, on a pebble or sac variant"):
+        grid.run.load_variants("cpu")
 
 
 def test_the_committed_grid_files_have_all_their_runs_done(grid, capsys):
@@ -983,8 +995,8 @@ def test_a_bad_claim_names_the_grid_file_and_what_is_wrong(grid, page, tmp_path,
         grid.load_grid(write_grid(tmp_path / "one", f"claims: {claim}\n" + PAIR_GRID))
 
 
-CHECK_GRID = ("check: {metric: success, rise: 0.2, at_least: 0.2}\nruns:\n  - {configurations: [pebble], "
-              "tasks: [window-open-v3], seeds: 0-1, feedback: [1200]}\n")  # fmt: skip
+CHECK_GRID = ("check: {check}\nruns:\n  - {{configurations: [pebble], tasks: [window-open-v3], seeds: 0-1, "
+              "feedback: [1200]}}\n")  # fmt: skip
 
 
 def write_checked_run(folder: Path, seed: int, success: list[float], asked: int = 1200) -> None:
@@ -999,10 +1011,11 @@ def write_checked_run(folder: Path, seed: int, success: list[float], asked: int 
     (name / "result.json").write_text(json.dumps({"final_return": 0.0, "feedback_asked": asked}))
 
 
-def check_of(page, tmp_path, runs: dict[int, tuple[list[float], int]]) -> dict:
-    """The check of CHECK_GRID read on runs ``{seed: (success rates, queries asked)}``."""
+def check_of(page, tmp_path, runs: dict[int, tuple[list[float], int]],
+             check: str = "{metric: success, rise: 0.2, at_least: 0.2}") -> dict:  # fmt: skip
+    """The ``check`` of CHECK_GRID read on runs ``{seed: (success rates, queries asked)}``."""
     tmp_path.mkdir(parents=True)
-    path = write_grid(tmp_path, CHECK_GRID)
+    path = write_grid(tmp_path, CHECK_GRID.format(check=check))
     for seed, (success, asked) in runs.items():
         write_checked_run(tmp_path / "runs", seed, success, asked)
     (check,) = page.recount([path], tmp_path / "runs")["checks"]
@@ -1022,6 +1035,12 @@ def test_a_check_is_read_on_each_run_and_fails_on_a_run_that_does_not_learn(page
     assert short["passes"] is False and short["runs"][1]["passes"] is False
     low = check_of(page, tmp_path / "low", {0: ([0.2] * 9 + [0.2, 0.2, 0.2], 1200), 1: (learns, 1200)})
     assert low["passes"] is False  # at least 0.2 but no rise
+    rounded = check_of(page, tmp_path / "rounded", {0: ([0.0] * 9 + [0.0, 0.0, 0.6], 1200), 1: (learns, 1200)})
+    assert rounded["passes"] is True  # NumPy's mean of 0, 0 and 0.6 is 0.19999999999999998
+    rising = {0: ([0.0] * 9 + [0.4] * 3, 1200), 1: ([0.0] * 9 + [0.6] * 3, 1200)}
+    assert check_of(page, tmp_path / "reached", rising, "{metric: success, rise: 0.2, at_least: 0.4}")["passes"] is True
+    below = check_of(page, tmp_path / "below", rising, "{metric: success, rise: 0.2, at_least: 0.5}")
+    assert [r["passes"] for r in below["runs"]] == [False, True]  # seed 0 rose by 0.4 but ends below 0.5
     waiting = check_of(page, tmp_path / "waiting", {0: (learns, 1200)})
     assert waiting["passes"] is None and waiting["planned"] == 2
     assert check_of(page, tmp_path / "waiting_flat", {1: (flat, 1200)})["passes"] is False  # decided without seed 0
@@ -1030,6 +1049,9 @@ def test_a_check_is_read_on_each_run_and_fails_on_a_run_that_does_not_learn(page
     assert table.count("**passes** (2 of 2 runs read)") == 1 and "**fails** (2 of 2 runs read)" in table
     assert "no verdict yet: 1 of its 2 runs are in" in table
     assert "| 1100 (1200 set) |" in page.render_checks({"checks": [short]})
+    too_short = "check on success: the run pebble_window-open-v3_s0_fb1200 has 3 evaluations of it, the check needs 6"
+    with pytest.raises(SystemExit, match=re.escape(too_short)):
+        check_of(page, tmp_path / "too_short", {0: ([0.0, 0.0, 0.2], 1200)})
     assert page.render_checks({"checks": []}) == "" and "## Checks" in page.render_page(
         {**page.recount([tmp_path / "passes" / "grid.yml"], tmp_path / "passes" / "runs"), "claims": []}
     )
@@ -1043,6 +1065,10 @@ def test_a_check_is_read_on_each_run_and_fails_on_a_run_that_does_not_learn(page
         ("{metric: success, rise: high}", "rise is a number"),
         ("{metric: success, rise: 0.2, last: 3}", "unknown key last"),
         ("[success, 0.2]", "a check is a mapping"),
+        ("{metric: success, rise: true}", "rise is a number"),
+        ("{metric: success, rise: 0.2, at_least: null}", "at_least is a number"),
+        ("{metric: success, rise: .nan}", "rise is a number"),
+        ("{metric: success, rise: -0.2}", "rise is how far .* 0 or more"),
     ],
 )
 def test_a_bad_check_names_the_grid_file_and_what_is_wrong(grid, tmp_path, check, message):
