@@ -413,8 +413,9 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
     """The data of the page: every row's statistics and every comparison, from the run folders."""
     rows, extra, claims = collect(grid_files, runs_folder)
     finals: dict[tuple, np.ndarray | None] = {}  # the primary return of each run, which the comparisons use
+    runs_found: dict[tuple, list[dict]] = {}  # each row's finished runs, which the checks read
     for key, row in rows.items():
-        found = runs_of(row)
+        found = runs_found[key] = runs_of(row)
         finals[key] = plot.primary_returns(found) if found else None
         last = plot.final_returns(found) if found else None
         successes = [r["curve"]["success"][-1] for r in found]
@@ -489,14 +490,15 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         share = None if own is None or top is None or top.mean() == 0 else own.mean() / top.mean()
         row["share_of_ceiling"] = None if share is None else round(float(share), 3)
     verdicts = [verdict(claim, task, rows, finals) for claim in claims for task in claim["tasks"]]
-    checks = [read_check(path, check, rows) for path in grid_files if (check := grid.load_grid(path).get("check"))]
+    checks = [read_check(path, check, rows, runs_found) for path in grid_files
+              if (check := grid.load_grid(path).get("check"))]  # fmt: skip
     tasks: dict[str, list[dict]] = {}
     # each task's PEBBLE reference first, then its rows in the order of the grid files
     for key, row in sorted(rows.items(), key=lambda item: (task_order(item[0][0]), item[0] != references[item[0][0]])):
         reference = references[key[0]]
         row.setdefault("against_pebble", None)
         row.setdefault("against_earlier_pebble", None)
-        row["reference_feedback"] = rows[reference]["feedback"] if reference else None
+        row["task_reference"] = key == reference
         tasks.setdefault(row["task"], []).append({k: v for k, v in row.items() if k not in ("specs", "out")})
     return {
         "generated_by": "python benchmarks/results_page.py",
@@ -593,22 +595,26 @@ def check_rule_text(check: dict) -> str:
     return text + (f" and at least {check['at_least']}" if "at_least" in check else "")
 
 
-def read_check(path: Path, check: dict[str, Any], rows: dict[tuple, dict]) -> dict[str, Any]:
+def read_check(
+    path: Path, check: dict[str, Any], rows: dict[tuple, dict], runs_found: dict[tuple, list[dict]]
+) -> dict[str, Any]:
     """
     The check of the grid file ``path`` (whether PEBBLE alone learns a task, before the task is held out) read on each
-    of its runs: a
-    run passes where it asked the budget it was set (``result.json``'s ``feedback_asked``) and the mean of its last
-    :data:`plot.LAST_EVALUATIONS` evaluations of the check's metric is at least ``rise`` above that of its first ones,
-    and at least ``at_least`` where the check sets it (both means rounded to four decimals first, as the pages show
-    them: a success rate of 0.2 is not missed by a rounding error). The check ``passes`` where every run of the grid
+    of its finished runs (``runs_found``: :func:`runs_of` each row): a run passes where it asked the budget it was set
+    (``result.json``'s ``feedback_asked``) and the mean of its last :data:`plot.LAST_EVALUATIONS` evaluations of the
+    check's metric is at least ``rise`` above that of its first ones, and at least ``at_least`` where the check sets it
+    (both means rounded to four decimals first, as the pages show them: a success rate of 0.2 is not missed by a
+    rounding error). The check ``passes`` where every run of the grid
     is finished and passes, fails as soon as one finished run fails, and has no verdict (``None``) before. A run whose
     curve lacks the metric, or holds fewer than twice :data:`plot.LAST_EVALUATIONS` evaluations of it, is an error.
     """
     n, where = plot.LAST_EVALUATIONS, relative(path)
     read, planned = [], 0
-    for row in (row for row in rows.values() if row["grid"] == where):
+    for key, row in rows.items():
+        if row["grid"] != where:
+            continue
         planned += len(row["specs"])
-        for found in runs_of(row):
+        for found in runs_found[key]:
             names = found["curve"].dtype.names or ()
             values = np.asarray(found["curve"][check["metric"]] if check["metric"] in names else [], dtype=float)
             if np.isnan(values).any() or len(values) < 2 * n:
@@ -850,15 +856,8 @@ def render_docs(data: dict[str, Any]) -> str:
 
 
 def reference_row(rows: list[dict]) -> dict | None:
-    """A task's PEBBLE reference among its rows (plain PEBBLE at the budget the rows are compared with, the one run
-    beside PRIDE's defaults first)."""
-    feedback = next((row["reference_feedback"] for row in rows if row["reference_feedback"]), None)
-    for beside in (True, False):
-        found = next((row for row in rows if row["algo"] == "pebble" and row["feedback"] == feedback
-                      and (row.get("reference") if beside else row["configuration"] == "pebble")), None)  # fmt: skip
-        if found is not None:
-            return found
-    return None
+    """A task's PEBBLE reference among its rows, as :func:`reference_key` chose it (``None`` where it has none)."""
+    return next((row for row in rows if row["task_reference"]), None)
 
 
 def budget_phrase(row: dict) -> str:

@@ -3,8 +3,8 @@ otherwise; pooled comparisons do not depend on the order of the folders."""
 
 import importlib.util
 import json
-import re
 import os
+import re
 import sys
 from pathlib import Path
 
