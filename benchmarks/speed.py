@@ -1,7 +1,7 @@
 """
 Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identical networks, one process.
 
-    python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --timesteps 15000 --repeats 2
+    python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --repeats 2
     python benchmarks/speed.py --algos pebble pride --variant rows_on_top --timesteps 25000
     python benchmarks/speed.py --algos pebble pride --variant wide generator_kwargs.width=512 --timesteps 25000
     python benchmarks/speed.py --algos pebble --variant blocking_paced seconds_per_answer=0.5 \
@@ -126,7 +126,12 @@ def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False
 def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("--env", default="sb3_pride/walker-walk-v0")
-    parser.add_argument("--timesteps", type=int, default=None, help="15000, or with --as-tier the tier's n_timesteps")
+    parser.add_argument(
+        "--timesteps",
+        type=int,
+        default=None,
+        help="25000 (long enough to ask the shortened budget), or with --as-tier the tier's n_timesteps",
+    )
     parser.add_argument("--repeats", type=int, default=2)
     parser.add_argument(
         "--algos", nargs="*", default=["sac", "pebble", "pride"], help="none (--algos alone): the variants only"
@@ -153,7 +158,7 @@ def main() -> None:
     if not algos:
         raise SystemExit("nothing to time: give --algos or a --variant")
     if args.timesteps is None:
-        args.timesteps = tier_timesteps(args.env) if args.as_tier else 15_000
+        args.timesteps = tier_timesteps(args.env) if args.as_tier else 25_000
 
     version, started = provenance(), utc_now()  # the code timed, as it was when the timing began
     results: dict[str, list[dict]] = defaultdict(list)
