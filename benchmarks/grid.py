@@ -42,7 +42,8 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
 Each run is ``benchmarks/run.py``'s: its folder is named by ``run_name()`` and a run whose ``result.json`` exists is
 skipped, so a grid cut off half way picks up where it stopped, and the committed runs of a grid count as done. Seeds
 are outermost, across blocks too: every cell gets its first seed before any gets its second. A run folder being run holds a ``claim``
-(the grid process's id), so a second ``grid.py`` started on the same grid leaves those runs and adds its workers.
+(the grid process's id and its worker's), so a second ``grid.py`` started on the same grid leaves those runs and adds its
+workers, also where the first ``grid.py`` was stopped and its running workers left to finish.
 """
 
 import argparse

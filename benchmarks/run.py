@@ -450,10 +450,23 @@ def process_alive(pid: int) -> bool:
     return True
 
 
+def claim_holders(path: Path) -> list[int] | None:
+    """
+    The process ids a run folder's claim names: the grid process that claimed it, then the worker it started (which
+    goes on if that grid process is stopped); ``[]`` without a claim, ``None`` while one is being written (empty).
+    """
+    text = path.read_text().strip() if path.exists() else ""
+    if not text:
+        return None if path.exists() else []
+    words = text.split()
+    return [int(word) for word in words] if all(word.isdigit() for word in words) else None
+
+
 def claim_run(folder: Path) -> bool:
     """
     Claim a run folder for this process, so that another grid process on the same folders leaves it (its ``claim``
-    file holds the process id; the claim of a process that is gone is taken over): False if a live process holds it.
+    file holds the process ids, :func:`claim_holders`; a claim none of whose processes lives is taken over): False if
+    a live process holds it.
     """
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / CLAIM
@@ -461,9 +474,11 @@ def claim_run(folder: Path) -> bool:
         try:
             fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
         except FileExistsError:
-            text = path.read_text().strip()
-            if not text.isdigit() or process_alive(int(text)):  # an empty claim is one being written
-                return int(text) == os.getpid() if text.isdigit() else False
+            holders = claim_holders(path)
+            if holders is None:  # being written
+                return False
+            if any(process_alive(pid) for pid in holders):
+                return os.getpid() in holders
             path.unlink(missing_ok=True)
             continue
         with os.fdopen(fd, "w") as file:
@@ -473,10 +488,9 @@ def claim_run(folder: Path) -> bool:
 
 
 def claimed_elsewhere(folder: Path) -> bool:
-    """Whether another live process holds the run folder's claim."""
-    path = folder / CLAIM
-    text = path.read_text().strip() if path.exists() else ""
-    return text.isdigit() and int(text) != os.getpid() and process_alive(int(text))
+    """Whether a live process other than this one holds the run folder's claim."""
+    holders = claim_holders(folder / CLAIM) or []
+    return os.getpid() not in holders and any(process_alive(pid) for pid in holders)
 
 
 def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
@@ -510,7 +524,11 @@ def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
                 continue
             with open(out / run_name(spec) / "log.txt", "w") as log:
                 command = [sys.executable, __file__, "--out", str(out), "--worker", json.dumps(spec)]
-                running.append((subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT), spec, time.time()))
+                process = subprocess.Popen(command, stdout=log, stderr=subprocess.STDOUT)
+            # the worker holds the claim too: it goes on if this process is stopped, and no other grid may start it again
+            with open(out / run_name(spec) / CLAIM, "a") as claim:
+                claim.write(f" {process.pid}")
+            running.append((process, spec, time.time()))
             print(f"started {run_name(spec)}", flush=True)
         time.sleep(2)
         for process, spec, started in list(running):

@@ -435,6 +435,7 @@ def instant_workers(grid, monkeypatch, out: Path, check=None) -> list[str]:
 
     class FakeProcess:
         returncode = 0
+        pid = os.getpid()
 
         def __init__(self, command, **_):
             name = grid.run.run_name(json.loads(command[command.index("--worker") + 1]))
@@ -493,6 +494,44 @@ def test_a_second_grid_process_leaves_the_runs_another_live_process_claimed(grid
     assert grid.run.claim_run(out / "pebble_walker-walk_s0_fb400")  # its process is gone: taken over
 
 
+def test_a_worker_keeps_its_claim_after_its_grid_process_is_stopped(grid, tmp_path, monkeypatch):
+    """A started worker's id joins its run's claim, so that stopping the grid process that started it (its worker goes
+    on) does not let another grid process start the same run again into the same folder."""
+    import subprocess
+
+    path = write_grid(tmp_path, "runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0-1, feedback: [400]}\n")
+    out = tmp_path / "runs"
+    worker = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    stopped_grid = subprocess.Popen([sys.executable, "-c", "pass"])
+    stopped_grid.wait()
+    claims: list[str] = []
+
+    class Process:  # a worker that writes its result at once, reading its claim while it runs
+        returncode = 0
+        pid = worker.pid
+
+        def __init__(self, command, **_):
+            self.name = grid.run.run_name(json.loads(command[command.index("--worker") + 1]))
+
+        def poll(self):
+            claims.append((out / self.name / grid.run.CLAIM).read_text())
+            (out / self.name / "result.json").write_text(json.dumps({"final_return": 1.0, "final_success": None}))
+            return 0
+
+    monkeypatch.setattr(grid.run.subprocess, "Popen", Process)
+    monkeypatch.setattr(grid.run.time, "sleep", lambda seconds: None)
+    try:
+        (out / "pebble_walker-walk_s0_fb400").mkdir(parents=True)
+        (out / "pebble_walker-walk_s0_fb400" / grid.run.CLAIM).write_text(f"{stopped_grid.pid} {worker.pid}")
+        grid.main([str(path), "--out", str(out)])
+        assert not (out / "pebble_walker-walk_s0_fb400" / "result.json").exists()  # its worker lives: left to it
+        assert claims == [f"{os.getpid()} {worker.pid}"]  # seed 1, run here: the worker's id beside the grid's
+    finally:
+        worker.kill()
+        worker.wait()
+    assert grid.run.claim_run(out / "pebble_walker-walk_s0_fb400")  # neither process lives: taken over
+
+
 def test_a_run_that_starts_from_another_waits_for_it_and_is_not_run_when_it_failed(grid, tmp_path, monkeypatch):
     """A run reading another run's journal starts only once that run has its result; never if that run failed."""
     text = (
@@ -505,6 +544,8 @@ def test_a_run_that_starts_from_another_waits_for_it_and_is_not_run_when_it_fail
 
     class FakeProcess:
         """A worker that finishes at its second poll (so that runs overlap); seed 2's plain run fails."""
+
+        pid = os.getpid()
 
         def __init__(self, command, **_):
             spec = json.loads(command[command.index("--worker") + 1])
