@@ -53,7 +53,14 @@ CLAIM = "claim"
 
 
 def env_id(task: str) -> str:
-    return f"sb3_pride/{task}-v0" if task in DMC_TASKS else f"sb3_pride/{task}"
+    """A task's gymnasium id: ``sb3_pride/<task>-v0`` for DMC, ``sb3_pride/<task>`` for Meta-World, else the id itself."""
+    import gymnasium as gym
+
+    from sb3_pride.envs import DM_CONTROL_TASKS
+
+    if task in DMC_TASKS or task in DM_CONTROL_TASKS:
+        return f"sb3_pride/{task}-v0"
+    return task if task in gym.registry else f"sb3_pride/{task}"
 
 
 def run_name(spec: dict[str, Any]) -> str:
