@@ -3,7 +3,7 @@ How many labels does a policy need? The label-response study's reading of its ru
 
     python benchmarks/label_response.py screen    # which candidate tasks qualify, by the rule of the screen's grid file
 
-``screen`` reads the SAC runs of ``benchmarks/grids/label-response-screen.yml`` and applies the rule its description
+``screen`` reads the SAC runs of ``benchmarks/grids/pending/label-response-screen.yml`` (pending until its runs are in) and applies the rule its description
 states (written before its runs): per task, the mean curve over seeds; its plateau gap, (best - mean of the last third
 of the evaluations) / (best - first evaluation), must be at most ``PLATEAU_GAP``, and every run must have taken at
 most ``MAX_MINUTES`` of wall time; of the qualifying tasks the three cheapest are studied (at least one from dm_control)
@@ -28,7 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import results_page as page
 
-SCREEN = page.GRIDS / "label-response-screen.yml"
+SCREEN = page.GRIDS / "pending" / "label-response-screen.yml"
 SCREEN_PAGE = page.ROOT / "benchmarks" / "results" / "label_response_screen.md"
 #: the screen's rule (the grid file's description states it in words)
 PLATEAU_GAP = 0.05
