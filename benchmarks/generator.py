@@ -11,7 +11,7 @@ Resumable: configurations already in ``--out`` are skipped (``--only NAME ...`` 
 
 Data: ``--transitions`` walker-walk transitions under smooth random actions (a_t = clip(0.9 a_{t-1} + 0.45 ε)).
 The generators train on all of them; the yardstick holds out a random 20% to measure real data's own error.
-Yardstick: one ``DynamicsEnsemble`` (sb3_pride.common.fidelity) fitted once on the real transitions; every
+Yardstick: one ``DynamicsEnsemble`` (sb3_pride.pride.fidelity) fitted once on the real transitions; every
 configuration's samples are judged by it (``dynamics_error_ratio``: error of synthetic s' over the error of real
 held-out s'; 1.0 = as consistent as real data) and by their novelty (nearest real neighbour, over real-to-real).
 Samples generated from real transitions are also judged on those whose anchor the yardstick held out ("ratio,
@@ -34,9 +34,9 @@ import torch as th
 
 import sb3_pride  # noqa: F401  (registers the environments)
 from run import env_id  # benchmarks/run.py, beside this script
-from sb3_pride.common.diffusion import NORMALIZATIONS, ElucidatedDiffusion
-from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions
-from sb3_pride.common.generator import add_states_to_next_states
+from sb3_pride.pride.diffusion import NORMALIZATIONS, ElucidatedDiffusion
+from sb3_pride.pride.fidelity import DynamicsEnsemble, measure_fidelity, split_transitions
+from sb3_pride.pride.generator import add_states_to_next_states
 
 
 def collect(task: str, n: int, seed: int) -> tuple[np.ndarray, int]:

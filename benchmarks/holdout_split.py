@@ -21,7 +21,7 @@ import numpy as np
 import torch as th
 
 from generator import collect  # benchmarks/generator.py, beside this script
-from sb3_pride.common.fidelity import DynamicsEnsemble, split_transitions
+from sb3_pride.pride.fidelity import DynamicsEnsemble, split_transitions
 
 
 class StableHoldout:

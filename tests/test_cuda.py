@@ -7,8 +7,8 @@ import torch as th
 from test_contract import TINY_DIFFUSION
 
 from sb3_pride import PEBBLE, PRIDE
-from sb3_pride.common.diffusion import ElucidatedDiffusion
-from sb3_pride.common.fidelity import DynamicsEnsemble
+from sb3_pride.pride.diffusion import ElucidatedDiffusion
+from sb3_pride.pride.fidelity import DynamicsEnsemble
 from sb3_pride.common.utils import merge_kwargs
 
 pytestmark = pytest.mark.skipif(not th.cuda.is_available(), reason="needs a CUDA device")

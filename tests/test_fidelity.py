@@ -7,7 +7,7 @@ import pytest
 from stable_baselines3.common.logger import configure
 
 from sb3_pride import PRIDE
-from sb3_pride.common.fidelity import DynamicsEnsemble, measure_fidelity
+from sb3_pride.pride.fidelity import DynamicsEnsemble, measure_fidelity
 from tests.test_pride import tiny_pride
 
 #: a dynamics ensemble small enough for tests

@@ -30,8 +30,8 @@ from hypothesis import strategies as st
 
 from sb3_pride import PEBBLE, PRIDE
 from sb3_pride.common.teachers import TEACHERS
-from sb3_pride.common.diffusion import NORMALIZATIONS
-from sb3_pride.common.generator import FILTERS, GENERATIONS
+from sb3_pride.pride.diffusion import NORMALIZATIONS
+from sb3_pride.pride.generator import FILTERS, GENERATIONS
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs
 from sb3_pride.common.reward_learner import RewardLearner

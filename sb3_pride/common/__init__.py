@@ -1,1 +1,1 @@
-"""Building blocks shared by PEBBLE and PRIDE: buffers, reward model, queries, teachers, entropy, diffusion, fidelity."""
+"""Building blocks shared by PEBBLE and PRIDE: buffers, reward model, queries, teachers, state entropy, the journal."""

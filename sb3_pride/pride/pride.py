@@ -9,7 +9,7 @@ from stable_baselines3.sac.policies import SACPolicy
 
 from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
 from sb3_pride.common.env_checks import check_episode_length
-from sb3_pride.common.generator import GenerationReport, TransitionGenerator
+from sb3_pride.pride.generator import GenerationReport, TransitionGenerator
 from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE

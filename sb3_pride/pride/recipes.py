@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_pride.common.generator import TransitionGenerator
+from sb3_pride.pride.generator import TransitionGenerator
 from sb3_pride.common.utils import check_real, merge_kwargs
 from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS, RENAMED_PEBBLE_SETTINGS
 

@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import torch as th
 
-from sb3_pride.common.diffusion import FitInfo, ElucidatedDiffusion
-from sb3_pride.common.fidelity import DynamicsEnsemble, Fidelity, check_anchors, measure_fidelity, split_transitions
+from sb3_pride.pride.diffusion import FitInfo, ElucidatedDiffusion
+from sb3_pride.pride.fidelity import DynamicsEnsemble, Fidelity, check_anchors, measure_fidelity, split_transitions
 from sb3_pride.common.utils import check_choice, check_positive_ints, check_real
 
 #: how synthetic transitions are generated (``generation``)
