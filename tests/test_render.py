@@ -69,11 +69,6 @@ def test_a_task_that_re_draws_its_terrain_is_refused_when_the_teacher_is_attache
         PEBBLE("MlpPolicy", "sb3_pride/quadruped-escape-v0", teacher=WebTeacher(port=0), segment_length=10)
 
 
-def test_an_env_that_cannot_be_re_rendered_is_refused_when_the_teacher_is_attached():
-    with pytest.raises(ValueError, match="WebTeacher re-renders segments from the simulator states that RenderStates"):
-        PEBBLE("MlpPolicy", "Pendulum-v1", teacher=WebTeacher(port=0), segment_length=10)
-
-
 def test_scripted_teachers_record_no_states(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", **tiny_kwargs)
     model.learn(150)

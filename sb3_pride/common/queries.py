@@ -117,7 +117,8 @@ def sample_segment_pairs(
     ``n_pairs`` pairs of segments drawn uniformly (with replacement) from the valid starts of ``segment_starts``.
 
     :param render_states: copy the simulator states recorded beside the transitions, if any (a teacher that watches
-        the segments needs them; pairs no one will see do not)
+        the segments needs them; pairs no one will see do not); a segment holding a NaN state, one the teacher can no
+        longer show (its recorded frames were dropped), is then never drawn
 
     :return: the pairs, or ``None`` when no segment fits in the stored episodes yet
     """
@@ -125,11 +126,19 @@ def sample_segment_pairs(
     if len(starts) == 0:
         return None
     rows = chronological_rows(buffer)
+    # mean true reward per step over the window queries come from (B-Pref: recent returns × segment / horizon)
+    window_rewards = buffer.true_rewards[rows[starts.min() :]]
+    if render_states and buffer.render_states is not None:
+        # a teacher marks the transitions it can no longer show (NaN states): no segment holding one is drawn
+        hidden = np.cumsum(np.isnan(buffer.render_states[rows, :, 0]), axis=0)
+        hidden = np.vstack([np.zeros((1, buffer.n_envs), dtype=hidden.dtype), hidden])
+        showable = hidden[starts + segment_length, envs] == hidden[starts, envs]
+        starts, envs = starts[showable], envs[showable]
+        if len(starts) == 0:
+            return None
     pick = rng.integers(0, len(starts), size=(n_pairs, 2))
     steps = rows[starts[pick][..., None] + np.arange(segment_length)]  # (n, 2, k) buffer rows
     env_idx = np.broadcast_to(envs[pick][..., None], steps.shape)
-    # mean true reward per step over the window queries come from (B-Pref: recent returns × segment / horizon)
-    window_rewards = buffer.true_rewards[rows[starts.min() :]]
     return SegmentPairs(
         observations=buffer.observations[steps, env_idx],
         actions=buffer.actions[steps, env_idx],

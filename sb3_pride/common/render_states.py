@@ -4,12 +4,45 @@ them to a person): ``RenderStates`` puts the MuJoCo state after each step into `
 act, the mocap bodies' poses (Meta-World's hand) and the model fields that a reset re-draws (Meta-World's object and
 goal positions; dm_control's targets in reacher, finger, fish, swimmer, manipulator) — and ``PreferenceReplayBuffer``
 keeps it beside each stored transition. Recording is off until a teacher switches it on: scripted teachers pay nothing.
+
+Any other env can give exact clips the same way through the render-state protocol (``RenderStateEnv``): a method
+``get_render_state()`` that returns a flat float array describing what the env would draw now, and a method
+``render_from_state(state)`` that draws the frame of such an array. A teacher then records the states, not frames, and
+re-renders them in a copy of the env of its own.
 """
 
-from typing import Any
+from typing import Any, Protocol, runtime_checkable
 
 import gymnasium as gym
 import numpy as np
+
+
+@runtime_checkable
+class RenderStateEnv(Protocol):
+    """
+    The render-state protocol: an env (or any wrapper of it) with these two methods is shown to a person from states
+    recorded beside the transitions, exactly, without recording frames.
+    """
+
+    def get_render_state(self) -> np.ndarray:
+        """A flat array of numbers (stored as float64) from which ``render_from_state`` draws what the env shows now."""
+        ...
+
+    def render_from_state(self, state: np.ndarray) -> np.ndarray:
+        """The (height, width, 3) uint8 frame of ``state``, as ``render()`` draws it after the step that produced it."""
+        ...
+
+
+def has_render_state_protocol(env: gym.Env) -> bool:
+    """Whether ``env`` or one of its wrappers has the render-state protocol's two methods (``RenderStateEnv``)."""
+    for name in ("get_render_state", "render_from_state"):
+        try:
+            if not callable(env.get_wrapper_attr(name)):
+                return False
+        except AttributeError:
+            return False
+    return True
+
 
 #: model fields a reset may re-draw, recorded with the state when they do (small per-element arrays)
 MODEL_FIELDS = (

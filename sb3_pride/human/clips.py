@@ -1,6 +1,7 @@
 """
-A ``WebTeacher``'s clips: the folder they are written to, the renderer that draws them (``SegmentRenderer``), and the
-one thread that does all of its MuJoCo work.
+A ``WebTeacher``'s clips: the folder they are written to, the renderer that draws them (``SegmentRenderer``,
+``StateRenderer`` or ``RecordedRenderer``, chosen when the teacher is attached: ``sb3_pride.human.showing``), and the
+one thread that does all of its rendering work.
 """
 
 import atexit
@@ -66,7 +67,8 @@ class RenderThread:
 class Clips:
     """
     Where a teacher's clips are written, and what writes them: ``renderer`` (a ``SegmentRenderer``, or anything with
-    ``render(states) -> frames`` and ``fps``), made, used and closed in ``thread``.
+    ``render(states) -> frames``, ``fps`` and ``close()``, and optionally ``prepare(render_states)``, called in
+    ``render()``'s thread before any clip is drawn), used and closed in ``thread``.
 
     A clip's file is named after the question it was rendered for (``<id>-left.mp4``, ``<id>-right.mp4``); the web
     server finds the file of an address through the open session (``AnswerStore.clip_file``), so that a known-answer
@@ -95,15 +97,18 @@ class Clips:
         return Path(self._temporary)
 
     def use(self, env_id: str) -> Any:
-        """The renderer of ``env_id``: made (in the render thread) unless the one there renders it already."""
-        if self.renderer is None or self.renderer.env_id != env_id:
-            renderer = self.thread.call(
-                render.SegmentRenderer, env_id, width=self.width, height=self.height, camera=self.camera
+        """The MuJoCo renderer of ``env_id``: made (in the render thread) unless the one there renders it already."""
+        if getattr(self.renderer, "layout", None) is None or self.renderer.env_id != env_id:  # not a MuJoCo renderer
+            self.use_renderer(
+                self.thread.call(render.SegmentRenderer, env_id, width=self.width, height=self.height, camera=self.camera)
             )
-            if self.renderer is not None:
-                self.thread.call(self.renderer.close)
-            self.renderer = renderer
         return self.renderer
+
+    def use_renderer(self, renderer: Any) -> None:
+        """Draw the clips with ``renderer`` from now on; the one used before is closed (in the render thread)."""
+        if renderer is not self.renderer and self.renderer is not None:
+            self.thread.call(self.renderer.close)
+        self.renderer = renderer
 
     def render(self, store: AnswerStore, session: Session, render_states: np.ndarray, known: list[float | None]) -> None:
         """
@@ -113,9 +118,10 @@ class Clips:
 
         :param known: per query, its answer where the true reward makes it clear (``Quality.known_from_reward``)
         """
-        self.thread.call(self._render, store, session, render_states, known)
+        prepare = getattr(self.renderer, "prepare", None)  # recorded frames: read them all now, before the agent moves on
+        self.thread.call(self._render, store, session, render_states if prepare is None else prepare(render_states), known)
 
-    def _render(self, store: AnswerStore, session: Session, render_states: np.ndarray, known: list[float | None]) -> None:
+    def _render(self, store: AnswerStore, session: Session, render_states: Any, known: list[float | None]) -> None:
         folder = self.folder()
         for query, states, answer in zip(session.queries, render_states, known, strict=True):
             if session.cancelled:

@@ -63,16 +63,95 @@ def egl_available() -> bool:
 
 
 def frame_rate(env: gym.Env) -> float:
-    """Frames per second of a clip played at the env's real speed: one frame per env step."""
+    """
+    Frames per second of a clip played at the env's real speed: one frame per env step of ``dt`` seconds (dm_control's
+    ``control_timestep``), else the env's ``metadata["render_fps"]``.
+    """
     unwrapped = env.unwrapped
     control = getattr(getattr(unwrapped, "_env", None), "control_timestep", None)
     dt = control() if callable(control) else getattr(unwrapped, "dt", None)
+    if not dt and (env.metadata or {}).get("render_fps"):
+        return float(env.metadata["render_fps"])
     if not dt:
         raise ValueError(
-            f"cannot tell the duration of one step of {env.spec.id if env.spec else env} (no control_timestep or dt): "
-            "WebTeacher plays clips at the env's real speed; give the env a dt attribute"
+            f"cannot tell the duration of one step of {env.spec.id if env.spec else env} (no control_timestep, dt or "
+            "metadata['render_fps']): WebTeacher plays clips at the env's real speed; give the env a dt attribute"
         )
     return 1.0 / float(dt)
+
+
+class StateRenderer:
+    """
+    Renders states recorded through the render-state protocol (``get_render_state``/``render_from_state`` of
+    ``sb3_pride.common.render_states.RenderStateEnv``) in a copy of the env of its own: made again from its spec
+    (``gymnasium.make``) when it has one, else a deep copy of the unwrapped env.
+
+    :param env: the model's env (one of its ``DummyVecEnv``)
+    """
+
+    def __init__(self, env: gym.Env):
+        spec = env.unwrapped.spec
+        self.env_id = spec.id if spec is not None else type(env.unwrapped).__name__
+        self.fps = frame_rate(env)
+        self.env = copy_env(env)
+
+    def render(self, states: np.ndarray) -> np.ndarray:
+        """(k, height, width, 3) uint8 frames of ``states`` (k, state_dim)."""
+        draw_state = self.env.get_wrapper_attr("render_from_state")
+        frames = [np.asarray(draw_state(state)) for state in states]
+        if any(frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape != frames[0].shape for frame in frames):
+            raise ValueError(f"{self.env_id}.render_from_state must return (height, width, 3) uint8 frames of one size")
+        return np.stack(frames)[..., :3]
+
+    def close(self) -> None:
+        """Close the renderer's own env."""
+        self.env.close()
+
+
+def copy_env(env: gym.Env) -> gym.Env:
+    """An env of its own like ``env``: ``gymnasium.make`` of its spec (``render_mode="rgb_array"``), else a deep copy."""
+    import copy
+
+    spec = env.unwrapped.spec
+    if spec is not None and spec.id in gym.registry:
+        try:
+            return gym.make(spec, render_mode="rgb_array")
+        except TypeError:  # an env that takes no render_mode
+            return gym.make(spec)
+    try:
+        return copy.deepcopy(env.unwrapped)
+    except Exception as error:
+        raise ValueError(
+            f"cannot copy {type(env.unwrapped).__name__} to re-render its states ({type(error).__name__}: {error}): "
+            "register it (gymnasium.register) and make it with gymnasium.make, so that the teacher can make its own"
+        ) from error
+
+
+class RecordedRenderer:
+    """
+    Cuts clips from the frames a ``FrameRecording`` holds: ``prepare(keys)`` reads a session's (compressed) frames at
+    once, ``render`` decodes them; ``close()`` removes the recording.
+
+    :param recording: the recording of the model's env
+    :param env_id: the env's id (or class name)
+    :param fps: its frame rate
+    """
+
+    def __init__(self, recording: Any, env_id: str, fps: float):
+        self.recording, self.env_id, self.fps = recording, env_id, fps
+
+    def prepare(self, keys: np.ndarray) -> list[list[list[bytes]]]:
+        """The stored frames of a session's ``keys`` (n, 2, k, 3), read now (the agent may drop them meanwhile)."""
+        return [[self.recording.records(segment) for segment in pair] for pair in keys]
+
+    def render(self, segment: np.ndarray | list[bytes]) -> np.ndarray:
+        """(k, h, w, 3) uint8 frames of a segment's keys (k, 3) or of what ``prepare`` read for it."""
+        records = self.recording.records(segment) if isinstance(segment, np.ndarray) else segment
+        return self.recording.decode(records)
+
+    def close(self) -> None:
+        """Remove the recording (its envs record NaN keys from now on)."""
+        self.recording.close()
 
 
 class SegmentRenderer:

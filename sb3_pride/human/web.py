@@ -1,8 +1,9 @@
 """
 ``WebTeacher``: people label segment pairs in a browser while the agent trains.
 
-At each feedback session the run renders every queried pair as two H.264 clips (re-rendered from the simulator
-states recorded beside the transitions), serves them on a web page and waits until every query has its answers.
+At each feedback session the run renders every queried pair as two H.264 clips (re-rendered from the states recorded
+beside the transitions, or cut from the frames the env rendered: ``sb3_pride.human.showing``), serves them on a web
+page and waits until every query has its answers.
 One person on this machine needs nothing more; several annotators each open a secret link, are handed queries no one
 else is answering (or, with ``answers_per_query=k``, the same query as ``k - 1`` others), and may be checked with
 known-answer questions mixed into what they see. Answers go to the run's preference journal the moment they are given
@@ -24,8 +25,8 @@ from typing import TYPE_CHECKING, Any, ClassVar
 import numpy as np
 
 from sb3_pride.common.queries import SegmentPairs
-from sb3_pride.common.render_states import enable_render_states
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, register_teacher
+from sb3_pride.human import showing
 from sb3_pride.human.app import REFUSAL_STATUS
 from sb3_pride.human.clips import Clips
 from sb3_pride.human.quality import (
@@ -38,6 +39,7 @@ from sb3_pride.human.quality import (
 )
 from sb3_pride.human.questions import Question, Refused, Session
 from sb3_pride.human.render import use_headless_gl
+from sb3_pride.human.recording import check_recording_settings
 from sb3_pride.human.server import WebServer
 from sb3_pride.human.settings import (
     ANNOTATOR_NAME,
@@ -75,8 +77,9 @@ class WebTeacher(InteractiveTeacher):
     preferred (μ = 1), ArrowDown = equally good (μ = 0.5), s = skip, Backspace = undo your last answer of this
     session. Everything is served by the training process (no internet needed). Use it as
     ``PEBBLE(..., teacher=WebTeacher(port=8000))`` or ``teacher="web"``; needs the ``[human]`` extra and an env that can
-    be re-rendered (every ``sb3_pride/...`` env). Below the pair, a curve of corr(r̂, r) after each feedback session
-    (``show_reward_history``) tells the team whether its labels teach r̂ the task.
+    be shown: any env made with ``render_mode="rgb_array"`` (how it is shown is decided when the teacher is attached,
+    printed and kept in ``shown_from``: ``sb3_pride.human.showing``). Below the pair, a curve of corr(r̂, r) after each
+    feedback session (``show_reward_history``) tells the team whether its labels teach r̂ the task.
 
     Several annotators: ``WebTeacher(annotators=["ana", "ben"])`` gives each a secret token; ``links`` (printed when
     the server starts) maps each name to the URL that carries it, and every request of the page must carry one. Each
@@ -128,6 +131,11 @@ class WebTeacher(InteractiveTeacher):
         never read) is dropped then, and the server's thread freed
     :param hand_over_after: seconds a query may stay shown to an annotator who does not answer it (while their page
         still polls) before an annotator who has nothing left to answer is handed it
+    :param recorded_episodes: for an env shown from recorded frames, the episodes kept (over all envs, the running ones
+        included, as ``query_kwargs["max_query_episodes"]`` counts those queries come from: keep the two equal)
+    :param recording_bytes: for an env shown from recorded frames, the most bytes of compressed frames kept on disk
+    :param recording_dir: the folder in which recorded frames are kept, in a folder of the run's own removed by
+        ``close()`` or at exit (None: the system's temporary folder)
     """
 
     # the settings (constructor parameters), saved with a model; and the parts, made anew when it is loaded
@@ -148,7 +156,11 @@ class WebTeacher(InteractiveTeacher):
     seed: int | None
     read_timeout: float
     hand_over_after: float
+    recorded_episodes: int
+    recording_bytes: int
+    recording_dir: Path | None
     env_id: str | None
+    shown_from: str | None
     quality: Quality
     store: AnswerStore
     clips: Clips
@@ -173,8 +185,12 @@ class WebTeacher(InteractiveTeacher):
         seed: int | None = None,
         read_timeout: float = READ_TIMEOUT,
         hand_over_after: float = HAND_OVER_AFTER,
+        recorded_episodes: int = 100,
+        recording_bytes: int = 1 << 30,
+        recording_dir: str | Path | None = None,
     ):
         settings = check_settings({name: value for name, value in locals().items() if name in self._SETTINGS})
+        settings["recording_dir"] = check_recording_settings(recorded_episodes, recording_bytes, recording_dir)
         use_headless_gl()  # before the first env is made: MuJoCo reads MUJOCO_GL once
         self.__setstate__(settings)
 
@@ -182,11 +198,12 @@ class WebTeacher(InteractiveTeacher):
     _SETTINGS = (
         "port", "host", "timeout", "width", "height", "clip_dir", "reminder_interval", "camera", "annotators",
         "instructions", "answers_per_query", "known_answer_rate", "known_answer_margin", "report_path", "seed",
-        "read_timeout", "hand_over_after",
+        "read_timeout", "hand_over_after", "recorded_episodes", "recording_bytes", "recording_dir",
     )  # fmt: skip
     _DEFAULTS: ClassVar[dict[str, Any]] = dict(
         annotators=None, instructions=None, answers_per_query=1, known_answer_rate=0.0, known_answer_margin=0.5,
-        report_path=None, seed=None, read_timeout=READ_TIMEOUT, hand_over_after=HAND_OVER_AFTER,
+        report_path=None, seed=None, read_timeout=READ_TIMEOUT, hand_over_after=HAND_OVER_AFTER, recorded_episodes=100,
+        recording_bytes=1 << 30, recording_dir=None,
     )  # fmt: skip
 
     def __getstate__(self) -> dict:
@@ -196,6 +213,7 @@ class WebTeacher(InteractiveTeacher):
         """The settings (a teacher saved before a setting existed gets its default), and new parts: new tokens."""
         self.__dict__.update({**self._DEFAULTS, **state})
         self.env_id = None  # the env id seen by attach(): it picks the default instructions
+        self.shown_from = None  # how attach() shows the env: showing.MUJOCO_STATES, RENDER_STATES or RECORDED_FRAMES
         self.quality = Quality(
             self.annotators,
             self.answers_per_query,
@@ -226,33 +244,13 @@ class WebTeacher(InteractiveTeacher):
 
     def attach(self, env: "VecEnv", buffer: "PreferenceReplayBuffer") -> None:
         """
-        Called by the model when it is made, loaded or given a new env: check that ``env`` can be re-rendered,
-        switch on the recording of simulator states beside the transitions of ``buffer``, start the web server (and
-        print the annotators' links the first time).
+        Called by the model when it is made, loaded or given a new env: decide how ``env`` is shown (``showing.show``:
+        MuJoCo states, the env's render states or recorded frames; an env that cannot be shown is refused), switch on
+        what that records beside the transitions of ``buffer``, start the web server (and print the annotators' links
+        the first time).
         """
-        try:
-            env_id = env.get_attr("render_env_id")[0]
-        except AttributeError:
-            raise ValueError(
-                "WebTeacher re-renders segments from the simulator states that RenderStates records: make the env as "
-                "'sb3_pride/<domain>-<task>-v0' (dm_control) or 'sb3_pride/<task>-v3' (Meta-World), or wrap a MuJoCo env "
-                "with sb3_pride.human.RenderStates(env, env_id=...)"
-            ) from None
-        if buffer.size() > 0 and buffer.render_states is None:
-            raise ValueError(
-                f"the replay buffer holds {buffer.size()} transitions recorded without simulator states (by a scripted "
-                "teacher's run): a WebTeacher could not show segments of them. Resume a WebTeacher run's buffer, or start "
-                "from an empty one"
-            )
-        renderer = self.clips.use(env_id)
-        state_size = enable_render_states(env, renderer.layout)
-        if state_size != renderer.state_size:
-            raise ValueError(
-                f"the env records states of {state_size} numbers but a fresh {env_id!r} has {renderer.state_size}: "
-                "RenderStates(env, env_id=...) must name an id that makes this same env"
-            )
-        buffer.record_render_states = True
-        self.env_id = env_id
+        recording = dict(episodes=self.recorded_episodes, max_bytes=self.recording_bytes, parent=self.recording_dir)
+        self.shown_from, self.env_id = showing.show(self.clips, env, buffer, recording)
         self.clips.folder()  # made now, not by two threads at once
         serving = self.server.running
         self.port = self.server.start(self.host, self.port)
