@@ -5,25 +5,26 @@ rl-zoo3 with PRIDE and PEBBLE registered:
     python -m sb3_pride.zoo enjoy --algo pride --env dm_control/walker-walk-v0 -f logs/
     sb3-pride-zoo train --algo pebble --env sb3_pride/button-press-v3 -conf hyperparams/cpu/pebble.yml
 
-Every rl-zoo3 subcommand works (``train``, ``enjoy``, ``record_video``, ``plot_train``, ``plot_from_file``,
+``train --resume`` goes on from the newest complete checkpoint of the latest run (``--save-freq``), replay buffer
+included. Every rl-zoo3 subcommand works (``train``, ``enjoy``, ``record_video``, ``plot_train``, ``plot_from_file``,
 ``all_plots``). rl-zoo3 has no plugin hook, so this patches its ``ALGOS`` table (one dict shared by all its
 modules) and its optuna samplers, then runs rl-zoo3's own entry point. Our hyperparameter files
 (``hyperparams/{pride,pebble,sac}.yml``) are used when ``-conf`` is not given and they have an entry for the env.
 """
 
-import functools
 import os
 import re
 import runpy
 import sys
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import yaml
-from stable_baselines3.common.callbacks import CheckpointCallback
+from stable_baselines3.common import callbacks
 
 from sb3_pride.pebble import PEBBLE
 from sb3_pride.pride import PRIDE
+from sb3_pride.common.checkpoints import CheckpointCallback, checkpoint_path, clean_leftovers, latest_checkpoint
 from sb3_pride.common.utils import merge_kwargs
 from sb3_pride.pride.recipes import expand_recipe
 
@@ -122,15 +123,33 @@ class _InferenceLoader:
         return self.algo.load(path, **kwargs)
 
 
+class _ContinuingModel:
+    """What rl-zoo3's ``learn`` is given to go on with a model: the model, its ``learn()`` continuing the step count."""
+
+    def __init__(self, model: Any):
+        self.model = model
+
+    def learn(self, *args: Any, **kwargs: Any) -> Any:
+        return self.model.learn(*args, reset_num_timesteps=False, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.model, name)
+
+
 def _continue_step_count(manager_class: type) -> type:
     """
     rl-zoo3's ExperimentManager, with what a crash-safe PRIDE/PEBBLE run needs: ``-i`` continues the step count
     (rl-zoo3 restarts it at 0) so that the feedback and diffusion schedules go on where they were;
-    ``--save-freq`` with ``--save-replay-buffer`` saves the replay buffer with every checkpoint (rl-zoo3 saves it
-    only at the end of a run), and ``-i path/rl_model_N_steps.zip`` loads that checkpoint's buffer.
+    ``--save-freq`` writes each checkpoint as one unit (``sb3_pride.common.checkpoints.CheckpointCallback``), with
+    ``--save-replay-buffer`` its replay buffer included (rl-zoo3 saves it only at the end of a run), and
+    ``-i path/rl_model_N_steps.zip`` loads that checkpoint's buffer, after removing what a killed save left there.
     """
 
     class ExperimentManager(manager_class):  # type: ignore[misc, valid-type]
+        #: ``--resume``: the step count goes on for every algorithm, up to the run's ``n_timesteps``
+        resuming: ClassVar[bool] = False
+        n_timesteps: int
+
         def objective(self, trial: Any) -> float:
             # rl-zoo3 updates the entry with the sampled values key by key: a sampled generator_kwargs (reward_kwargs)
             # would replace the entry's (a recipe's generator) instead of changing one of its settings: merged here
@@ -157,31 +176,53 @@ def _continue_step_count(manager_class: type) -> type:
             return hyperparams, saved
 
         def create_callbacks(self) -> None:
+            # checkpoints written as one unit (the replay buffer, then the model), with the buffer if asked for
             super().create_callbacks()
-            if self.algo in ZOO_ALGOS and self.save_replay_buffer:
-                for callback in self.callbacks:
-                    if isinstance(callback, CheckpointCallback):
-                        callback.save_replay_buffer = True
+            for index, callback in enumerate(self.callbacks):
+                if type(callback) is callbacks.CheckpointCallback:
+                    self.callbacks[index] = CheckpointCallback(
+                        callback.save_freq,
+                        callback.save_path,
+                        callback.name_prefix,
+                        save_replay_buffer=callback.save_replay_buffer or self.save_replay_buffer,
+                        save_vecnormalize=callback.save_vecnormalize,
+                        verbose=callback.verbose,
+                    )
 
         def _load_pretrained_agent(self, hyperparams: dict[str, Any], env: Any) -> Any:
-            model = super()._load_pretrained_agent(hyperparams, env)
-            checkpoint = re.fullmatch(r"(.*)_(\d+)_steps\.zip", os.path.basename(self.trained_agent))
             folder = os.path.dirname(self.trained_agent)
-            if isinstance(model, PEBBLE) and checkpoint and not os.path.exists(os.path.join(folder, "replay_buffer.pkl")):
-                buffer = os.path.join(folder, f"{checkpoint[1]}_replay_buffer_{checkpoint[2]}_steps.pkl")
-                if os.path.exists(buffer):
-                    print(f"Loading the checkpoint's replay buffer {buffer}")
-                    model.load_replay_buffer(buffer)
+            clean_leftovers(folder)  # what a save killed midway left beside the checkpoint
+            checkpoint = re.fullmatch(r"(.*)_(\d+)_steps\.zip", os.path.basename(self.trained_agent))
+            buffer = checkpoint and checkpoint_path(folder, checkpoint[1], int(checkpoint[2]), "replay_buffer_")
+            if not (buffer and buffer.is_file()):
+                return super()._load_pretrained_agent(hyperparams, env)
+            # rl-zoo3's, with the checkpoint's own replay buffer rather than the one its run saved at its end
+            import rl_zoo3
+
+            print("Loading pretrained agent")
+            for key in ("policy", "policy_kwargs"):
+                hyperparams.pop(key, None)
+            model: Any = rl_zoo3.ALGOS[self.algo].load(
+                self.trained_agent,
+                env=env,
+                seed=self.seed,
+                tensorboard_log=self.tensorboard_log,
+                verbose=self.verbose,
+                device=self.device,
+                **hyperparams,
+            )
+            print(f"Loading the checkpoint's replay buffer {buffer}")
+            model.load_replay_buffer(buffer, truncate_last_traj=self.truncate_last_trajectory)
             return model
 
         def learn(self, model) -> None:
-            if not (self.continue_training and isinstance(model, PEBBLE)):
+            resuming = self.continue_training and type(self).resuming
+            if not resuming and not (self.continue_training and isinstance(model, PEBBLE)):
                 return super().learn(model)
-            model.learn = functools.partial(model.learn, reset_num_timesteps=False)  # type: ignore[method-assign]
-            try:
-                super().learn(model)
-            finally:
-                del model.learn  # an instance attribute would be saved with the model
+            if resuming:  # --resume: the run goes on to its n_timesteps
+                self.n_timesteps = max(self.n_timesteps - model.num_timesteps, 0)
+            # not a learn() set on the model: a checkpoint saved during the run would try to pickle it
+            super().learn(_ContinuingModel(model))
 
     return ExperimentManager
 
@@ -232,6 +273,41 @@ def default_config(argv: list[str]) -> str | None:
     return str(path) if env in entries or algo in ZOO_ALGOS else None
 
 
+def resume_arguments(argv: list[str]) -> tuple[list[str], bool]:
+    """
+    ``train``'s arguments with ``--resume [FOLDER]`` replaced by ``-i`` the newest complete checkpoint of ``FOLDER``,
+    or without a folder of the newest run of ``--algo`` on ``--env`` under ``-f`` that has one (``logs/pebble/
+    dm_control-walker-walk-v0_N``, the highest N first), after removing what a killed save left
+    (``sb3_pride.common.checkpoints``); and whether ``--resume`` was given.
+    """
+    index = next((i for i, arg in enumerate(argv) if arg == "--resume" or arg.startswith("--resume=")), None)
+    if index is None:
+        return argv, False
+    folder: str | None = argv[index].partition("=")[2] or None
+    given = folder is None and index + 1 < len(argv) and not argv[index + 1].startswith("-")
+    folder = argv[index + 1] if given else folder
+    rest = argv[:index] + argv[index + 1 + given :]
+    if _argument(rest, "-i", "--trained-agent") is not None:
+        raise SystemExit("--resume: give --resume or -i (--trained-agent), not both")
+    if folder is not None:
+        runs, where = [Path(folder)], folder
+    else:
+        from rl_zoo3.utils import EnvironmentName
+
+        algo, env = _argument(rest, "--algo") or "ppo", EnvironmentName(_argument(rest, "--env") or "CartPole-v1")
+        log = Path(_argument(rest, "-f", "--log-folder") or "logs", algo)
+        numbered = [path for path in log.glob(f"{env}_*") if re.fullmatch(rf"{re.escape(env)}_\d+(_.+)?", path.name)]
+        runs = sorted(numbered, key=lambda path: int(path.name[len(env) + 1 :].split("_")[0]), reverse=True)
+        where = f"{log}/{env}_N"
+    for run in runs:
+        clean_leftovers(run)
+        checkpoint = latest_checkpoint(run)
+        if checkpoint is not None:
+            print(f"Resuming from {checkpoint.model}, the newest complete checkpoint of {run}")
+            return [*rest, "-i", str(checkpoint.model)], True
+    raise SystemExit(f"--resume: no checkpoint rl_model_N_steps.zip in {where} (train with --save-freq N to make them)")
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if argv is None else argv)
     if not argv:
@@ -243,6 +319,10 @@ def main(argv: list[str] | None = None) -> None:
         config = default_config(arguments)
         if config is not None:
             arguments += ["-conf", config]
+        arguments, resuming = resume_arguments(arguments)
+        import rl_zoo3.train
+
+        rl_zoo3.train.ExperimentManager.resuming = resuming  # type: ignore[attr-defined]
     sys.argv = [f"sb3_pride.zoo {command}", *arguments]
     if command == "record_video":  # a script with no function to call
         runpy.run_module("rl_zoo3.record_video", run_name="__main__")

@@ -13,8 +13,9 @@ import yaml
 from conftest import skip_unless
 
 from sb3_pride import PEBBLE, PRIDE
+from sb3_pride.common.checkpoints import latest_checkpoint
 from sb3_pride.common.journal import PreferenceJournal
-from sb3_pride.zoo import hyperparams_dir, register
+from sb3_pride.zoo import hyperparams_dir, register, resume_arguments
 
 HYPERPARAMS = hyperparams_dir()
 FILES = ["sac.yml", "pebble.yml", "pride.yml", "cpu/sac.yml", "cpu/pebble.yml", "cpu/pride.yml"]
@@ -182,6 +183,62 @@ def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp
     assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.feedback.journal.included == 20
     assert len(PreferenceJournal(journal).read()) == 20  # feedback session 2 came back from the journal: nothing asked again
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
+
+
+@pytest.mark.slow
+def test_zoo_resume_goes_on_from_the_newest_complete_checkpoint_after_a_killed_save(tmp_path):
+    """--resume finds the newest checkpoint of the latest run that has its replay buffer, removes what a save killed
+    midway left, and trains on to the run's n_timesteps with the journal's answers taken back, none asked again."""
+    journal = tmp_path / "preferences.jsonl"
+    params = [*TINY_PEBBLE, f"preference_journal:'{journal}'"]
+    conf = str(HYPERPARAMS / "cpu/pebble.yml")
+    train = ["train", "--algo", "pebble", "--env", "dm_control/walker-walk-v0", "-n", "400", "-f", "logs", "-conf", conf]
+    train += ["--eval-freq", "0", "--save-freq", "150", "--save-replay-buffer"]
+    zoo(*train, "-params", *params, cwd=tmp_path)
+    run = tmp_path / "logs/pebble/dm_control-walker-walk-v0_1"
+    answers = PreferenceJournal(journal).read()
+    assert len(answers) == 20  # feedback sessions at steps 200 and 400
+    # as if killed while its checkpoint at 300 was written: the buffer renamed into place, the model not yet, and
+    # before the run's end (no final model)
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True).stdout)
+    (run / "rl_model_300_steps.zip").rename(run / f".rl_model_300_steps.zip.{dead}.tmp")
+    (run / "replay_buffer.pkl").unlink()
+    (run / "dm_control-walker-walk-v0.zip").unlink()
+
+    out = zoo(*train, "--resume", "-params", *params, cwd=tmp_path)
+    assert f"Resuming from {Path('logs/pebble/dm_control-walker-walk-v0_1/rl_model_150_steps.zip')}" in out
+    assert "Loading the checkpoint's replay buffer" in out
+    assert sorted(path.name for path in run.glob("*_steps*")) == [
+        "rl_model_150_steps.zip",
+        "rl_model_replay_buffer_150_steps.pkl",
+    ]
+    resumed = PEBBLE.load(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
+    assert resumed.num_timesteps == 400  # on to the run's -n, not 400 more
+    assert resumed.feedback_sessions == 2 and resumed.feedback.journal.included == 20
+    assert len(PreferenceJournal(journal).read()) == 20  # both sessions came back from the journal
+    np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
+    checkpoint = latest_checkpoint(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2")
+    assert checkpoint.step == 300 and checkpoint.replay_buffer is not None  # the resumed run's own, whole
+
+
+def test_resume_finds_the_latest_run_with_a_checkpoint_or_says_there_is_none(tmp_path):
+    logs = tmp_path / "logs/pebble"
+    for run, steps in (("walker_1", (100, 200)), ("walker_2", (300,)), ("walker_3", ()), ("walker_10_x", ())):
+        (logs / run).mkdir(parents=True)
+        for step in steps:
+            (logs / run / f"rl_model_{step}_steps.zip").write_bytes(b"model")
+    where = ["--algo", "pebble", "--env", "walker", "-f", str(tmp_path / "logs")]
+    arguments, resuming = resume_arguments([*where, "--resume", "-n", "10"])
+    assert resuming and arguments == [*where, "-n", "10", "-i", str(logs / "walker_2/rl_model_300_steps.zip")]
+    arguments, _ = resume_arguments([*where, f"--resume={logs / 'walker_1'}"])
+    assert arguments[-1] == str(logs / "walker_1/rl_model_200_steps.zip")
+    assert resume_arguments(where) == (where, False)
+    with pytest.raises(SystemExit, match=r"--resume: no checkpoint rl_model_N_steps\.zip in .*walker_3"):
+        resume_arguments([*where, "--resume", str(logs / "walker_3")])
+    with pytest.raises(SystemExit, match=r"--resume: no checkpoint .* in .*logs/sac/walker_N"):
+        resume_arguments(["--algo", "sac", "--env", "walker", "-f", str(tmp_path / "logs"), "--resume"])
+    with pytest.raises(SystemExit, match="not both"):
+        resume_arguments([*where, "--resume", "-i", "model.zip"])
 
 
 @pytest.mark.slow

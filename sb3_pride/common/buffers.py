@@ -47,6 +47,38 @@ def relabel_rewards(buffer: ReplayBuffer, reward_fn: RewardFn, batch_size: int =
         flat_rewards[start:stop] = reward_fn(flat_obs[start:stop], flat_actions[start:stop])
 
 
+def filled_rows_state(buffer: ReplayBuffer) -> dict:
+    """
+    What a buffer pickles: its attributes, with every per-row array (``buffer_size`` rows) cut to the rows filled so
+    far while the buffer is not full, so that a saved replay buffer is as large as what it holds, not as its
+    preallocated arrays; ``full_size_state`` grows them back.
+    """
+    state = dict(buffer.__dict__)
+    rows = buffer.size()
+    if rows < buffer.buffer_size:
+        cut = [
+            name
+            for name, value in state.items()
+            if isinstance(value, np.ndarray) and value.ndim > 0 and len(value) == buffer.buffer_size
+        ]
+        state.update({name: state[name][:rows] for name in cut}, _filled_rows_only=cut)
+    return state
+
+
+def full_size_state(state: dict) -> dict:
+    """
+    A pickled buffer's attributes (``filled_rows_state``) with the per-row arrays grown back to ``buffer_size`` rows,
+    so the loaded buffer goes on exactly where the saved one was (rows past the filled ones, which no sample, relabel
+    or query reads, are zeros). A buffer pickled whole passes unchanged.
+    """
+    state = dict(state)
+    for name in state.pop("_filled_rows_only", ()):
+        filled = state[name]
+        state[name] = np.zeros((state["buffer_size"], *filled.shape[1:]), dtype=filled.dtype)
+        state[name][: len(filled)] = filled
+    return state
+
+
 def concatenate_samples(first: ReplayBufferSamples, second: ReplayBufferSamples) -> ReplayBufferSamples:
     """Two minibatches as one, field by field, ``first``'s rows first; a field SB3 leaves None (n-step) stays None."""
     fields = [th.cat([a, b]) if a is not None and b is not None else None for a, b in zip(first, second, strict=True)]
@@ -61,7 +93,8 @@ class PreferenceReplayBuffer(ReplayBuffer):
     teacher and the diagnostics read, and stores r̂ of the current reward model in ``rewards`` (0 before the
     first reward model exists). ``relabel()`` rewrites every stored reward with r̂ after a reward update. The
     algorithm's ``reward_source`` says what new transitions store, what each sampled minibatch's rewards are (r_int
-    while pre-training, r̂ with RUNE's bonus) and which rows a share of it comes from (QPA's hybrid replay).
+    while pre-training, r̂ with RUNE's bonus) and which rows a share of it comes from (QPA's hybrid replay). It is
+    pickled (``save_replay_buffer``) with its filled rows only and loaded back at full size (``filled_rows_state``).
 
     Same constructor as SB3's ``ReplayBuffer``.
     """
@@ -99,8 +132,11 @@ class PreferenceReplayBuffer(ReplayBuffer):
         self.render_states: np.ndarray | None = None
 
     def __getstate__(self) -> dict:
-        # the reward source belongs to the algorithm, which attaches it again
-        return {**self.__dict__, "reward_source": None}
+        # the filled rows only; the reward source belongs to the algorithm, which attaches it again
+        return {**filled_rows_state(self), "reward_source": None}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(full_size_state(state))
 
     def add(self, obs, next_obs, action, reward, done, infos) -> None:  # type: ignore[override]
         self.true_rewards[self.pos] = np.asarray(reward, dtype=np.float32).reshape(self.n_envs)
@@ -186,6 +222,12 @@ class SyntheticReplayBuffer(ReplayBuffer):
         super().__init__(
             buffer_size, observation_space, action_space, device=device, n_envs=1, handle_timeout_termination=False
         )
+
+    def __getstate__(self) -> dict:
+        return filled_rows_state(self)  # the generated rows only, not the whole capacity
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(full_size_state(state))
 
     def replace(
         self,
