@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 from pathlib import Path
+from typing import ClassVar
 
 import gymnasium as gym
 import numpy as np
@@ -39,7 +40,7 @@ class KeepFrames(gym.Wrapper):
 class Dot(gym.Env):
     """A dot pushed along a line toward the middle; drawn as a 40 x 60 picture. Steps of 0.1 s, 30-step episodes."""
 
-    metadata = {"render_modes": ["rgb_array"], "render_fps": 10}
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 10}
 
     def __init__(self, render_mode: str | None = None):
         self.render_mode = render_mode
@@ -59,7 +60,7 @@ class Dot(gym.Env):
 
     def draw(self, position: float) -> np.ndarray:
         frame = np.full((40, 60, 3), 255, dtype=np.uint8)
-        column = int(round((position + 1) / 2 * 55))
+        column = round((position + 1) / 2 * 55)
         frame[15:25, column : column + 5] = (200, 30, 30)
         return frame
 

@@ -1,17 +1,20 @@
-"""WebTeacher in real headless Chromium during PEBBLE runs: a person's keys over two feedback sessions, and two
-annotators labeling one session together in two browsers."""
+"""WebTeacher in real headless Chromium during PEBBLE runs: a person's keys over two feedback sessions, two annotators
+labeling one session together in two browsers, and two annotators labeling envs that are not MuJoCo (Pendulum-v1 from
+recorded frames, an env of this file from its render states) while the agent trains."""
 
 import os
 import threading
 import time
+from typing import ClassVar
 
+import gymnasium as gym
 import numpy as np
 import pytest
 from conftest import skip_unless
 from test_web import label_or_skip, wait
 
 from sb3_pride import PEBBLE
-from sb3_pride.common.journal import PreferenceJournal
+from sb3_pride.common.journal import PreferenceJournal, query_id
 from sb3_pride.human import WebTeacher
 
 pytest.importorskip("flask")
@@ -134,6 +137,101 @@ def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwa
     assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
     by_annotator = {name: [label_or_skip(e) for e in entries if e.annotator == name] for name in ("ana", "ben")}
     assert by_annotator["ana"][0] == 1 and by_annotator["ben"][:2] == [0.5, "skip"]  # ana's undo took back her "left"
+
+
+class Lamp(gym.Env):
+    """A lamp whose brightness the action turns up or down (reward: brightness), drawn as a 48 x 64 picture whose lit
+    square grows with it; with the render-state protocol (its brightness), so a teacher re-draws its frames exactly."""
+
+    metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 20}
+
+    def __init__(self, render_mode: str | None = "rgb_array"):
+        self.render_mode = render_mode
+        self.observation_space = gym.spaces.Box(0.0, 1.0, (1,), np.float32)
+        self.action_space = gym.spaces.Box(-1.0, 1.0, (1,), np.float32)
+        self.brightness, self.steps = 0.5, 0
+
+    def reset(self, *, seed=None, options=None):
+        super().reset(seed=seed)
+        self.brightness, self.steps = float(self.np_random.uniform(0, 1)), 0
+        return np.array([self.brightness], np.float32), {}
+
+    def step(self, action):
+        self.brightness = float(np.clip(self.brightness + 0.1 * float(action[0]), 0, 1))
+        self.steps += 1
+        return np.array([self.brightness], np.float32), self.brightness, False, self.steps >= 40, {}
+
+    def get_render_state(self) -> np.ndarray:
+        return np.array([self.brightness])
+
+    def render_from_state(self, state: np.ndarray) -> np.ndarray:
+        frame = np.zeros((48, 64, 3), dtype=np.uint8)
+        half = 4 + int(18 * state[0])
+        frame[24 - half : 24 + half, 32 - half : 32 + half] = (255, 220, int(255 * state[0]))
+        return frame
+
+    def render(self):
+        return self.render_from_state(self.get_render_state())
+
+
+@pytest.mark.slow
+@pytest.mark.browser
+@pytest.mark.parametrize(
+    ("make_env", "shown_from", "size"),
+    [
+        (lambda: "Pendulum-v1", "recorded_frames", (500, 500)),  # made by SB3 with render_mode="rgb_array"
+        (lambda: Lamp(), "render_states", (64, 48)),
+    ],
+    ids=["Pendulum-v1", "custom-env"],
+)
+def test_two_annotators_label_an_env_that_is_not_mujoco_while_the_agent_trains(
+    make_env, shown_from, size, tiny_kwargs, tmp_path
+):
+    """ana and ben each open their link; the agent goes on training while they answer (asynchronous feedback); ana
+    prefers the left clip, ben the right one, through two feedback sessions: the journal holds exactly their answers."""
+    from selenium.webdriver.common.keys import Keys
+
+    journal = tmp_path / "preferences.jsonl"
+    teacher = WebTeacher(port=0, annotators=["ana", "ben"], recording_dir=tmp_path / "frames")
+    tiny_kwargs.update(queries_per_session=4, max_feedback=8, feedback_interval=100, segment_length=10)
+    model = PEBBLE("MlpPolicy", make_env(), teacher=teacher, preference_journal=journal, asynchronous_feedback=True,
+                   seed=0, **tiny_kwargs)  # fmt: skip
+    assert teacher.shown_from == shown_from
+    errors: list[BaseException] = []
+    training = threading.Thread(target=lambda: _learn(model, 1500, errors), daemon=True)
+    training.start()
+    drivers, keys, pages_saw = {}, {"ana": Keys.ARROW_LEFT, "ben": Keys.ARROW_RIGHT}, set()
+    try:
+        for name in ("ana", "ben"):
+            drivers[name] = chromium()
+            drivers[name].get(teacher.links[name])
+        while training.is_alive() and model.feedback_sessions < 2:
+            for name, driver in drivers.items():
+                shown = _playing(driver)
+                if shown:
+                    pages_saw.add(tuple(driver.execute_script(
+                        "const v = document.getElementById('left'); return [v.videoWidth, v.videoHeight];")))  # fmt: skip
+                    driver.find_element("tag name", "body").send_keys(keys[name])
+                    wait(lambda d=driver, s=shown: _playing(d) != s or model.feedback_sessions >= 2 or not training.is_alive())
+            time.sleep(0.1)
+    finally:
+        for driver in drivers.values():
+            driver.quit()
+    training.join(timeout=300)
+    folder = teacher.recording_dir
+    teacher.close()
+    assert not errors, errors
+    assert pages_saw == {size}  # the page played the env's own frames
+    assert model.feedback_sessions == 2 and model.feedback_asked == 8 and model.steps_awaiting_feedback > 0  # it trained on
+    entries = PreferenceJournal(journal).read()
+    assert len(entries) == 8 and len({entry.id for entry in entries}) == 8  # each query answered once
+    assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
+    assert all(entry.label == (0.0 if entry.annotator == "ana" else 1.0) for entry in entries)
+    journaled = {entry.id: entry.label for entry in entries}
+    labeled = zip(model.preferences.inputs, model.preferences.labels, strict=True)
+    assert {query_id(inputs): label for inputs, label in labeled} == journaled
+    assert model.feedback.journal.included == 8
+    assert not folder.exists() or not any(folder.iterdir())  # recorded frames are removed with the teacher
 
 
 def _playing(driver) -> str | None:
