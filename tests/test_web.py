@@ -134,8 +134,12 @@ def label_or_skip(entry) -> float | str:
 
 
 def no_mp4(monkeypatch) -> None:
-    """Clips of three bytes: the tests that answer many questions need files, not video."""
+    """Clips of a few bytes: the tests that answer many questions need files, not video (a known-answer question's copy
+    of its pair's clips too)."""
     monkeypatch.setattr("sb3_pride.human.render.encode_mp4", lambda frames, fps, path: Path(path).write_bytes(b"mp4"))
+    monkeypatch.setattr(
+        "sb3_pride.human.quality.recode_clip", lambda source, target, rng: Path(target).write_bytes(rng.bytes(4))
+    )
 
 
 @contextlib.contextmanager
@@ -332,6 +336,18 @@ def test_other_sites_cannot_post_or_rebind(open_session):
         assert request(teacher, "/api/state", None, {"Host": host})[0] == 200, host
 
 
+def test_no_site_can_frame_the_page(open_session):
+    """Every answer forbids framing (X-Frame-Options and CSP frame-ancestors): another site cannot show the page under
+    its own buttons, which one person alone (no token needed) would otherwise click for it."""
+    teacher = open_session
+    teacher.state()
+    for path, body in (("/", None), ("/api/state", None), ("/api/answer", {"id": "zzz", "label": 1}),
+                       ("/clips/a-left.mp4", None), ("/clips/missing.mp4", None), ("/nowhere", None)):  # fmt: skip
+        status, headers, _ = request(teacher, path, body)
+        assert headers.get("X-Frame-Options") == "DENY", (path, status)
+        assert headers.get("Content-Security-Policy") == "frame-ancestors 'none'", (path, status)
+
+
 def test_an_error_in_a_route_is_a_json_500(open_session, monkeypatch):
     def broken(annotator=None, instructions=""):
         raise RuntimeError("broken")
@@ -475,7 +491,7 @@ def test_annotators_refusals_are_http_errors_that_record_nothing(serve, tmp_path
     assert ana.answer(first_of_ana, 1) == 200
     answered = find(teacher, first_of_ana).pair
     assert ana.answer(first_of_ana, 1) == 409 and ana.answer(first_of_ana, 0) == 409
-    assert ben.answer(first_of_ana, 0) == 409
+    assert ben.answer(first_of_ana, 0) == 403  # not shown to ben: refused as a known-answer question would be
     assert len(run.journal.read()) == 1 and teacher.agreement()["ben"]["answers"] == 0
 
     while ana.state()["session"] is not None:
@@ -619,6 +635,128 @@ def test_known_answer_questions_look_like_any_other_and_their_first_answer_count
     assert between["known_answers"] == known_seen and between["session"] == 0  # shown once the session is over
 
 
+def answer_as_a_team(
+    teacher: WebTeacher, pages: list[Page], pairs: SegmentPairs, context: FeedbackContext, before=None, after=None
+) -> np.ndarray:
+    """Every page answers what it is shown (a known answer, or the true reward's) until the session is over; ``before``
+    and ``after`` are called with the page and the question before and after each answer."""
+    thread, result = ask_in_thread(teacher, pairs, context)
+    while thread.is_alive():
+        for page in pages:
+            shown, session = page.shown(), teacher.store.session
+            if shown is None or session is None or (question := session.find(shown)) is None:
+                continue
+            label = question.known if question.known is not None else true_answer(pairs, question.inputs)
+            if before is not None:
+                before(page, question)
+            assert page.answer(shown, label) == 200
+            if after is not None:
+                after(page, question)
+    return finish(thread, result)
+
+
+def test_two_annotators_are_refused_alike_on_known_answers_and_queries(serve, tmp_path, monkeypatch):
+    """ana and ben compare notes: once one has answered a question, the other answers it too. A known-answer question
+    and a query of the model are refused alike, the same status and the same message."""
+    no_mp4(monkeypatch)
+    teacher = serve(annotators=["ana", "ben"], known_answer_rate=0.5, seed=0)
+    run = Run(tmp_path / "preferences.jsonl")
+    pages = [Page(teacher, "ana"), Page(teacher, "ben")]
+    answer_as_a_team(teacher, pages, make_pairs(12), run.context(1))  # the clear pairs become known answers
+    refusals: dict[bool, set] = {True: set(), False: set()}
+
+    def the_other_answers_too(page: Page, question: Question) -> None:
+        other = pages[1] if page is pages[0] else pages[0]
+        status, _, reply = request(teacher, "/api/answer", {"id": question.id, "label": 1}, other.headers)
+        message = json.loads(reply)["error"]
+        if "no feedback session is open" not in message:  # the last answer closed the session, whatever it was
+            refusals[question.known is not None].add((status, message.replace(question.id, "<id>")))
+
+    answer_as_a_team(teacher, pages, make_pairs(12, seed=1), run.context(2), after=the_other_answers_too)
+    assert refusals[True] and refusals[False], refusals
+    assert refusals[True] == refusals[False] == {(403, "question '<id>' is not the one shown to you")}
+
+
+def test_a_known_answer_question_shown_too_long_goes_over_as_a_query_would(serve, tmp_path, monkeypatch):
+    """ana is shown a known-answer question and does not answer it; ben, who has nothing left, is handed it after
+    hand_over_after, as he would be a query: one that never went over would tell itself apart."""
+    teacher = serve(annotators=["ana", "ben"], known_answer_rate=0.5, hand_over_after=0.3)
+    teacher.quality.clips = None  # no clips to copy: the pair's own files
+    inputs = np.zeros((2, 4, 3))
+    teacher.quality.add_known(KnownPair(query_id(inputs), inputs, ("k-left.mp4", "k-right.mp4"), 1.0, "true reward"))
+    draws = iter([True])  # ana's first question is the known-answer one, then none
+    monkeypatch.setattr(
+        teacher.quality,
+        "draw_known",
+        lambda session, name: teacher.quality.known_question(session, name) if next(draws, False) else None,
+    )
+    query = Question("q", np.ones((2, 4, 3)), ready=True)
+    teacher.store.begin(Session(1, [query], 0, Run(tmp_path / "preferences.jsonl").context()))
+    ana, ben = Page(teacher, "ana"), Page(teacher, "ben")
+    known = ana.shown()
+    assert known != "q" and find(teacher, known).known == 1.0
+    assert ben.shown() == "q" and ben.answer("q", 1) == 200  # the query preloaded for ana went to ben
+    assert ben.shown() is None
+    time.sleep(0.4)
+    assert ana.shown() == known  # still polling, not answering
+    assert ben.shown() == known and ana.shown() is None  # handed over
+    assert ana.answer(known, 1) == 403 and ben.answer(known, 1) == 200
+    assert teacher.agreement()["ben"]["known_answers"] == 1
+
+
+class PaintedRenderer(FakeRenderer):
+    """Frames painted from the states (a colour per step over a ramp): each segment's clips are its own."""
+
+    def render(self, states: np.ndarray) -> np.ndarray:
+        colours = (np.asarray(states)[:, :3] * 200).astype(np.int64)
+        ramp = np.add.outer(np.arange(16), np.arange(16)) * 3
+        return ((colours[:, None, None, :] + ramp[None, :, :, None]) % 256).astype(np.uint8)
+
+
+def test_no_two_questions_serve_the_same_clip_bytes(serve, tmp_path):
+    """One person answers two feedback sessions; the second shows known-answer questions, pairs of the first. Each is a
+    copy of its pair's clips encoded anew: it shows the same frames (but for a dither of a level and the loss of a second
+    encoding), yet no question's clip is byte for byte another's."""
+    av = pytest.importorskip("av")
+    teacher = serve(known_answer_rate=0.6, seed=0)
+    teacher.clips.renderer = PaintedRenderer()
+    run, page = Run(tmp_path / "preferences.jsonl"), Page(teacher)
+    served: dict[str, bytes] = {}  # question id + side -> the bytes served
+
+    def fetch_clips(page: Page, question: Question) -> None:
+        for side, url in zip(("left", "right"), question.clips, strict=True):
+            status, _, body = request(teacher, url)
+            assert status == 200
+            served[f"{question.id}-{side}"] = body
+
+    def pairs(n: int, seed: int) -> SegmentPairs:
+        plain = make_pairs(n, seed)
+        states = np.random.default_rng(seed + 100).random((n, 2, 4, 4))
+        return SegmentPairs(plain.observations, plain.actions, plain.true_rewards, plain.return_scale, states)
+
+    answer_as_a_team(teacher, [page], pairs(6, 0), run.context(1), before=fetch_clips)
+    sources = {query.pair: query.files for query in teacher.quality.known}
+    known: list[Question] = []
+    answer_as_a_team(
+        teacher,
+        [page],
+        pairs(6, 1),
+        run.context(2),
+        before=lambda p, q: (fetch_clips(p, q), q.known is None or known.append(q)),
+    )
+    assert known, "no known-answer question was shown"
+    assert len(set(served.values())) == len(served), "two questions served the same clip"
+    folder = teacher.clips.folder()
+    for question in known:
+        for side, source in zip(("left", "right"), sources[question.pair], strict=True):
+            original, copy = (folder / source).read_bytes(), served[f"{question.id}-{side}"]
+            frames = []
+            for data in (original, copy):
+                with av.open(io.BytesIO(data)) as container:
+                    frames.append(np.stack([f.to_ndarray(format="rgb24") for f in container.decode(video=0)]).astype(int))
+            assert frames[0].shape == frames[1].shape and np.abs(frames[0] - frames[1]).mean() < 8
+
+
 def test_known_answers_take_as_long_as_journaled_ones(serve, tmp_path, monkeypatch):
     """The journal's durable write takes time; a known-answer question's answer and undo, which journal nothing, wait
     as long, so that response times do not tell them apart."""
@@ -656,6 +794,7 @@ def test_true_reward_known_answers_need_a_return_scale():
 def test_known_pairs_are_never_shown_to_who_made_them():
     """A majority's pair is never a known-answer question for its voters, nor a pair one answered, with annotators."""
     quality = WebTeacher(port=0, annotators=["ana", "ben", "cal"], answers_per_query=2, known_answer_rate=0.5).quality
+    quality.clips = None  # no clips to copy: a known-answer question shows its pair's own files
     inputs = np.zeros((2, 4, 3))
     majority = KnownPair(query_id(inputs), inputs, ("m-left.mp4", "m-right.mp4"), 1.0, "majority", frozenset({"ana", "ben"}))
     reward = KnownPair(query_id(inputs + 1), inputs + 1, ("r-left.mp4", "r-right.mp4"), 0.0, "true reward")
@@ -668,6 +807,7 @@ def test_known_pairs_are_never_shown_to_who_made_them():
     assert quality.known_question(session, "cal").pair == majority.pair
     assert quality.known_question(session, "cal") is None  # the true-reward pair is hers already: not shown again
     alone = WebTeacher(port=0, known_answer_rate=0.5).quality
+    alone.clips = None
     alone.add_known(reward)
     alone.seen[reward.pair] = {"anonymous"}
     question = alone.known_question(session, "anonymous")  # one person: shown again, under an address of its own

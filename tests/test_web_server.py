@@ -1,7 +1,10 @@
 """WebTeacher's server on a real port of this machine: what only a socket shows (the links printed when it starts,
-the console's masked tokens, the read timeout). Everything else of HTTP is tested through the app's test client."""
+the console's masked tokens, the deadline of a connection, the cap on open connections, bodies left unread). Everything
+else of HTTP is tested through the app's test client."""
 
+import select
 import socket
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -19,8 +22,10 @@ def attached(tmp_path):
     """Makes WebTeachers attached to a stand-in env (black clips, no MuJoCo): their server serves on a free port."""
     with black_clip_teachers(tmp_path / "clips") as make:
 
-        def attach(**kwargs) -> WebTeacher:
+        def attach(max_connections: int | None = None, **kwargs) -> WebTeacher:
             teacher = make(**kwargs)
+            if max_connections is not None:
+                teacher.server.max_connections = max_connections
             teacher.attach(FakeEnv(), FakeBuffer())
             return teacher
 
@@ -52,12 +57,15 @@ def test_links_are_printed_once_when_the_server_starts(attached, capsys):
     assert teacher.server.running and teacher.port == teacher.server.port > 0
     assert all(link in out for link in teacher.links.values())
     teacher.attach(FakeEnv(), FakeBuffer())  # attached again (a new env): the same server, the links are not printed again
-    assert capsys.readouterr().out == "" and teacher.port == teacher.server.port
+    again = capsys.readouterr().out
+    assert not any(link in again for link in teacher.links.values()) and teacher.port == teacher.server.port
     teacher.close()
     assert not teacher.server.running
 
 
 def test_tokens_never_reach_the_server_log(attached, caplog, capfd):
+    """Masked however the address spells it: any case, its name or its "=" percent-encoded, or where no parameter
+    named token is (the token itself is masked wherever it is)."""
     teacher = attached(annotators=["ana"])
     token = teacher.links["ana"].split("token=")[1]
     capfd.readouterr()
@@ -65,10 +73,14 @@ def test_tokens_never_reach_the_server_log(attached, caplog, capfd):
         assert get(teacher.url + f"clips/missing.mp4?token={token}") == 404
         assert get(teacher.url + f"api/answer?token={token}", b'{"id": "x"}') == 400
         assert get(teacher.url + f"clips/x.mp4?other=1&token={token}&b=2") == 404
+        for spelled in ("TOKEN=", "Token=", "token%3D", "token%3d", "%74oken=", "%54OKEN%3D", "tok%2565n=", "t="):
+            assert get(teacher.url + f"clips/missing.mp4?{spelled}{token}") in (401, 404), spelled  # both logged
+        assert get(teacher.url + f"clips/{token}.mp4") == 401
         time.sleep(0.2)  # the server's thread logs after it answered
     out, err = capfd.readouterr()
     logged = caplog.text + out + err
     assert "clips/missing.mp4?token=..." in logged and " 404 " in logged
+    assert "?TOKEN=..." in logged and "?token%3D..." in logged and "?tok%2565n=..." in logged and "clips/....mp4" in logged
     assert token not in logged
 
 
@@ -82,3 +94,99 @@ def test_a_half_sent_request_is_dropped_after_the_read_timeout(attached):
         answer, took = exchange(teacher.port, half)
         assert 0.4 < took < 5 and not answer.startswith(b"HTTP/1.1 200"), (half, answer, took)
     assert get(teacher.url + "api/state") == 200  # the server goes on
+
+
+def still_open(connection: socket.socket) -> bool:
+    """Whether the server has not closed ``connection`` (nothing to read, or data but no end)."""
+    readable, _, _ = select.select([connection], [], [], 0)
+    if not readable:
+        return True
+    try:
+        return connection.recv(65536, socket.MSG_PEEK) != b""
+    except OSError:
+        return False
+
+
+def test_a_request_sent_byte_by_byte_is_dropped_at_its_deadline(attached):
+    """read_timeout bounds a whole connection, not each read: clients that send a byte every 0.2 s (each read well
+    within the timeout) are dropped read_timeout seconds after they connected, and the server goes on."""
+    teacher = attached(read_timeout=1.0)
+    connections = [socket.create_connection(("127.0.0.1", teacher.port), timeout=5) for _ in range(5)]
+    start, closed = time.monotonic(), {}
+    try:
+        for connection in connections:
+            connection.sendall(b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
+        while time.monotonic() - start < 3.0 and len(closed) < len(connections):
+            for i, connection in enumerate(connections):
+                if i not in closed:
+                    if still_open(connection):
+                        try:
+                            connection.sendall(b"a")
+                        except OSError:
+                            closed[i] = time.monotonic() - start
+                    else:
+                        closed[i] = time.monotonic() - start
+            time.sleep(0.2)
+    finally:
+        for connection in connections:
+            connection.close()
+    assert len(closed) == len(connections) and all(0.8 < took < 2.0 for took in closed.values()), closed
+    assert get(teacher.url + "api/state") == 200
+
+
+def handler_threads() -> list[threading.Thread]:
+    return [thread for thread in threading.enumerate() if "process_request_thread" in thread.name]
+
+
+def test_open_connections_are_capped_and_the_page_still_answers(attached):
+    """Past max_connections open connections, the oldest is closed for each new one: 40 clients that connect and send
+    nothing hold at most 8 threads, and a request of the page is still answered at once."""
+    teacher = attached(max_connections=8)
+    before = len(handler_threads())
+    idle = [socket.create_connection(("127.0.0.1", teacher.port), timeout=5) for _ in range(40)]
+    try:
+        time.sleep(0.5)
+        assert len(handler_threads()) - before <= 8
+        assert sum(still_open(connection) for connection in idle) <= 8
+        start = time.monotonic()
+        assert get(teacher.url + "api/state") == 200 and time.monotonic() - start < 2
+    finally:
+        for connection in idle:
+            connection.close()
+
+
+def send_until_refused(port: int, head: bytes, size: int) -> tuple[int, bytes]:
+    """Send ``head`` then up to ``size`` bytes of body; (bytes of body the server let through, what it answered)."""
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as connection:
+        connection.sendall(head)
+        sent, chunk = 0, b"x" * 65536
+        try:
+            while sent < size:
+                connection.sendall(chunk)
+                sent += len(chunk)
+        except OSError:  # closed by the server: a reset, a broken pipe, or the send timed out
+            pass
+        try:
+            answer = connection.recv(65536)
+        except OSError:
+            answer = b""
+        return sent, answer
+
+
+def test_a_refused_body_is_not_read(attached):
+    """A request refused before its body is read (no token) gets no body read after its answer either: the connection
+    is closed instead, so a client announcing 200 MB pushes no more than the kernel's buffers take. An
+    ``Expect: 100-continue`` is answered only when the app reads the body: a refused one is told so at once. A short
+    body (the page's own, say with a token that expired) is still read, so that its refusal reaches the page."""
+    teacher = attached(annotators=["ana"])
+    head = (b"POST /api/answer HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\n"
+            b"Content-Length: 200000000\r\n")  # fmt: skip
+    sent, _ = send_until_refused(teacher.port, head + b"\r\n", 64 * 2**20)
+    assert sent < 32 * 2**20, sent
+    with socket.create_connection(("127.0.0.1", teacher.port), timeout=5) as connection:
+        connection.sendall(head + b"Expect: 100-continue\r\n\r\n")
+        answer = connection.recv(65536)
+    assert answer.startswith(b"HTTP/1.1 401"), answer[:60]
+    assert get(teacher.url + "api/answer", b'{"id": "x", "label": 1}') == 401
+    token = teacher.links["ana"].split("token=")[1]
+    assert get(teacher.url + f"api/answer?token={token}", b'{"id": "x"}') == 400

@@ -28,6 +28,9 @@ if TYPE_CHECKING:
 MAX_BODY = 64 * 1024
 #: the HTTP status of each reason the store refuses an answer or an undo for (``Refused.reason``)
 REFUSAL_STATUS = {"malformed": 400, "not shown": 403, "unknown": 404, "conflict": 409}
+#: headers of every answer: no other site may frame the page (and overlay its buttons, which one person alone, who
+#: needs no token, would click for it)
+FRAMING_REFUSED = {"X-Frame-Options": "DENY", "Content-Security-Policy": "frame-ancestors 'none'"}
 #: what a request without a valid token is told
 NO_TOKEN = "this needs an annotator's token: open your personal link (…/?token=…) from whoever runs the training"
 
@@ -72,7 +75,8 @@ def error_response(status: int, message: str) -> Any:
 def guard_requests(app: "Flask", tokens: Mapping[str, str]) -> None:
     """
     Install on ``app`` the guard every request passes before its route (a ``before_request`` hook: the Host check,
-    JSON-only POSTs, the token, the body; see the module's docstring), and answer every error as JSON. The guard
+    JSON-only POSTs, the token, the body; see the module's docstring), answer every error as JSON, and add
+    ``FRAMING_REFUSED`` to every answer. The guard
     leaves the annotator who sent the request in ``flask.g.annotator`` (None without tokens) and the parsed body of
     a ``POST`` in ``flask.g.body``.
 
@@ -93,6 +97,11 @@ def guard_requests(app: "Flask", tokens: Mapping[str, str]) -> None:
     def server_error(error: Exception) -> Any:  # a bug, or a journal that cannot be written: the page says so
         app.logger.exception("WebTeacher: a request failed")
         return error_response(500, f"the training run failed to handle this request: {type(error).__name__}: {error}")
+
+    @app.after_request
+    def refuse_framing(response: Any) -> Any:
+        response.headers.update(FRAMING_REFUSED)
+        return response
 
     @app.before_request
     def guard() -> Any:

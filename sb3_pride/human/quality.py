@@ -1,6 +1,7 @@
 """
 How far a ``WebTeacher``'s annotators can be trusted: known-answer questions (pairs whose answer is known, shown again
-as extra questions that only measure the annotator) and the agreement report.
+as extra questions that only measure the annotator, each with a copy of the pair's clips of its own) and the agreement
+report.
 """
 
 import json
@@ -11,7 +12,7 @@ import time
 import uuid
 from collections import Counter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,6 +20,9 @@ from sb3_pride.common.journal import atomic_write_path
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.human.questions import Answer, KnownPair, Question, Session
 from sb3_pride.human.settings import ANONYMOUS
+
+if TYPE_CHECKING:
+    from sb3_pride.human.clips import Clips
 
 #: known-answer pairs kept to draw from (the oldest are dropped beyond it)
 KNOWN_POOL_SIZE = 1000
@@ -32,6 +36,32 @@ FLAG_BELOW = 0.7
 FLAG_MIN_KNOWN = 8
 #: what the logger records of each annotator after every feedback session (``annotators/<name>/<key>``)
 LOGGED = ("answers", "known_answers", "known_answer_agreement", "compared_answers", "pairwise_agreement")
+#: a copy of a known-answer clip: the share of its 16 x 16 blocks shifted by one level, in each frame
+DITHERED_BLOCKS = 0.25
+
+
+def recode_clip(source: Path, target: Path, rng: np.random.Generator) -> None:
+    """
+    Write at ``target`` the clip ``source`` encoded anew, each frame with a dither of its own: a random quarter of its
+    16 x 16 blocks one level lighter or darker (``DITHERED_BLOCKS``). It shows what ``source`` shows, but its bytes and
+    size are its own: no one who kept ``source``, or another copy, finds it among what they were served.
+    """
+    import av
+
+    from sb3_pride.human import render
+
+    with av.open(str(source)) as container:
+        stream = container.streams.video[0]
+        fps = float(stream.average_rate or 10)
+        frames = np.stack([frame.to_ndarray(format="rgb24") for frame in container.decode(stream)]).astype(np.int16)
+    k, height, width = frames.shape[:3]
+    blocks = rng.choice(
+        [-1, 0, 1],
+        size=(k, -(-height // 16), -(-width // 16)),
+        p=[DITHERED_BLOCKS / 2, 1 - DITHERED_BLOCKS, DITHERED_BLOCKS / 2],
+    )
+    shift = blocks.repeat(16, axis=1).repeat(16, axis=2)[:, :height, :width, None]
+    render.encode_mp4(np.clip(frames + shift, 0, 255).astype(np.uint8), fps, target)
 
 
 class Quality:
@@ -66,7 +96,11 @@ class Quality:
         self.answers: list[Answer] = []
         #: pair id -> the annotators who answered it
         self.seen: dict[str, set[str]] = {}
+        #: where known-answer questions' copies of their pairs' clips are made (``recode_clip``, in its render thread);
+        #: None: a known-answer question shows its pair's own files
+        self.clips: Clips | None = None
         self._rng = random.Random(seed)
+        self._copies_rng = np.random.default_rng()  # dithers: fresh entropy, never the seed's (no copy is another's)
         self._lock = threading.RLock()
         self._report_lock = threading.Lock()
         self._stats: dict[str, dict[str, Any]] | None = None  # agreement(), until the next answer
@@ -91,12 +125,48 @@ class Quality:
         return [float(d > 0) if is_clear else None for d, is_clear in zip(difference, clear, strict=True)]
 
     def add_known(self, known: KnownPair) -> None:
-        """Keep a known-answer pair (once; the oldest are dropped beyond ``KNOWN_POOL_SIZE``)."""
+        """
+        Keep a known-answer pair (once; the oldest are dropped beyond ``KNOWN_POOL_SIZE``), and have a copy of its clips
+        made for the first question that shows it.
+        """
         with self._lock:
             if any(entry.pair == known.pair for entry in self.known):
                 return
             self.known.append(known)
+            for dropped in self.known[:-KNOWN_POOL_SIZE]:
+                self._remove_copies(dropped.copies)
+                dropped.copies.clear()
             del self.known[:-KNOWN_POOL_SIZE]
+        self._copy(known)
+
+    def _copy(self, known: KnownPair) -> None:
+        """Have a copy of ``known``'s clips made, in the clips' render thread, after the clips being rendered."""
+        if self.clips is not None:
+            self.clips.thread.submit(self._make_copy, known)
+
+    def _make_copy(self, known: KnownPair) -> None:
+        assert self.clips is not None
+        folder, copy = self.clips.folder(), uuid.uuid4().hex[:12]
+        try:
+            for side, source in zip(("left", "right"), known.files, strict=True):
+                recode_clip(folder / source, folder / f"{copy}-{side}.mp4", self._copies_rng)
+        except Exception as error:  # the pair is not shown; the session goes on
+            self._remove_copies([copy])
+            print(
+                f"WebTeacher: warning: a known-answer pair's clips could not be copied, it is not shown: {error}", flush=True
+            )
+            return
+        with self._lock:
+            if any(entry is known for entry in self.known):
+                known.copies.append(copy)
+            else:  # dropped meanwhile
+                self._remove_copies([copy])
+
+    def _remove_copies(self, copies: list[str]) -> None:
+        if self.clips is not None:
+            for copy in copies:
+                for side in ("left", "right"):
+                    (self.clips.folder() / f"{copy}-{side}.mp4").unlink(missing_ok=True)
 
     def learn_majority(self, query: Question) -> None:
         """A query on which at least two annotators, a majority of those who did not skip, chose one side becomes known."""
@@ -116,35 +186,52 @@ class Quality:
             return self.known_question(session, name)
         return None
 
+    def _fits(self, session: Session, name: str, known: KnownPair) -> str | None:
+        """
+        Whether ``known`` may be shown to ``name`` in ``session``: ``"fresh"`` (a pair they have not answered), ``"again"``
+        (one person alone, a true-reward pair of an earlier session) or None (shown to them in this session already, a
+        majority they were part of, or one of this session's queries that may still be handed to them).
+        """
+        if known.pair in session.known_shown.get(name, ()) or name in known.voters:
+            return None
+        live = session.by_pair.get(known.pair)
+        if live is not None and (name in live.answers or name in live.holders or live.taken < self.answers_per_query):
+            return None
+        if name not in self.seen.get(known.pair, ()):
+            return "fresh"
+        return "again" if not self.annotators and known.source == "true reward" and live is None else None
+
     def known_question(self, session: Session, name: str) -> Question | None:
         """
         A known-answer question for ``name`` in ``session``: a known pair they have not answered, never one of this
         session's queries that may still be handed to them, never a majority they were part of. Only one person alone
         (no ``annotators``) is shown, when no other is left, a true-reward pair they answered in an earlier session.
-        Its id is its own and its clips' addresses have the shape of every other's: nothing on the page tells it apart.
+        Its id is its own, its clips' addresses have the shape of every other's, and (with ``clips``) its clips are a
+        copy of the pair's made for it alone (``recode_clip``; a pair waits for its copy): nothing on the page, nor in
+        the bytes of its clips, tells it apart.
         """
         with self._lock:
-            shown = session.known_shown.setdefault(name, set())
-            fresh: list[KnownPair] = []
-            again: list[KnownPair] = []
+            fits: dict[str, list[KnownPair]] = {"fresh": [], "again": []}
             for known in self.known:
-                if known.pair in shown or name in known.voters:
-                    continue
-                live = session.by_pair.get(known.pair)
-                if live is not None and (name in live.answers or name in live.holders or live.taken < self.answers_per_query):
-                    continue
-                if name not in self.seen.get(known.pair, ()):
-                    fresh.append(known)
-                elif not self.annotators and known.source == "true reward" and live is None:
-                    again.append(known)
-            if not (fresh or again):
+                if (self.clips is None or known.copies) and (kind := self._fits(session, name, known)) is not None:
+                    fits[kind].append(known)
+            if not (fits["fresh"] or fits["again"]):
                 return None
-            known = self._rng.choice(fresh or again)
-            shown.add(known.pair)
-            question_id = uuid.uuid4().hex[:12]
-            question = Question(question_id, known.inputs, known.files, known.answer, True, pair=known.pair)
-            session.known[question_id] = question
+            known = self._rng.choice(fits["fresh"] or fits["again"])
+            session.known_shown.setdefault(name, set()).add(known.pair)
+            if self.clips is None:
+                question = Question(uuid.uuid4().hex[:12], known.inputs, known.files, known.answer, True, pair=known.pair)
+            else:  # its copy's files are named after it, as a query's are
+                question = Question(known.copies.pop(0), known.inputs, known=known.answer, ready=True, pair=known.pair)
+                self._copy(known)  # for the next question that shows it
+            session.known[question.id] = question
             return question
+
+    def may_take(self, session: Session, name: str, question: Question) -> bool:
+        """Whether the known-answer question ``question``, handed to another annotator, may go to ``name`` instead."""
+        with self._lock:
+            known = next((entry for entry in self.known if entry.pair == question.pair), None)
+            return known is not None and self._fits(session, name, known) is not None
 
     def count(self, answer: Answer) -> None:
         """Take ``answer`` into the agreement."""
@@ -213,11 +300,16 @@ class Quality:
         return stats
 
     def session_over(self, session: Session) -> None:
-        """After a feedback session: majorities become known answers; the agreement is logged, reported and checked."""
+        """
+        After a feedback session: majorities become known answers; the agreement is logged, reported and checked; the
+        copies of clips its known-answer questions showed are removed.
+        """
         with self._lock:
             for query in session.queries:
                 self.learn_majority(query)
             report = self.agreement()
+            if self.clips is not None:
+                self._remove_copies(list(session.known))
         for name, stats in report.items():
             for key in LOGGED:
                 if stats[key] is not None:

@@ -45,7 +45,7 @@ class Question:
     :param id: its id on the page (random; a known-answer question has its own, never the id of the pair it shows)
     :param inputs: the pair's (2, segment_length, input_dim) reward-model inputs
     :param files: the names of the files its two clips show, in the teacher's clip folder (a known-answer question
-        shows the files of an older question)
+        shows a copy of an older question's, made for it)
     :param known: a known-answer question's known answer; None for the model's queries
     :param ready: its clips are written: it may be handed out
     :param pair: the journal's id of its inputs (``query_id``; computed when not given)
@@ -100,6 +100,7 @@ class KnownPair:
 
     :param source: ``"true reward"`` or ``"majority"``
     :param voters: a majority's annotators (never shown it as a known-answer question)
+    :param copies: copies of its clips ready to show (``recode_clip``), by the id of the question each is made for
     """
 
     pair: str
@@ -108,6 +109,7 @@ class KnownPair:
     answer: float
     source: str
     voters: frozenset[str] = frozenset()
+    copies: list[str] = field(default_factory=list)
 
 
 @dataclass(eq=False)

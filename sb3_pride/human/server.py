@@ -1,57 +1,238 @@
 """
 A ``WebTeacher``'s page on the network: its Flask app (``create_app``) served by werkzeug's threaded server in a
-daemon thread, with the annotators' secret tokens, a read timeout on every connection and a console that never shows
-a token.
+daemon thread, with the annotators' secret tokens, a deadline on every connection, a cap on open connections, no body
+read past a refusal, and a console that never shows a token.
+
+werkzeug answers one request per connection (``Connection: close``), so a connection's deadline is its request's:
+``read_timeout`` seconds from its ``accept`` to its close, however slowly the bytes come (a timeout on each read alone
+lets a client that sends a byte every few seconds hold a thread forever). A production WSGI server (waitress, cheroot)
+was weighed: their timeouts are per read or for idle connections, and their connection limits stop accepting, so
+neither bounds such a client; the limits here are a few lines over werkzeug's own server.
 """
 
 import re
 import secrets
+import socket
 import threading
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Iterable
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
 
-from sb3_pride.human.app import create_app
+from sb3_pride.human.app import MAX_BODY, create_app
 from sb3_pride.human.clips import Clips
-from sb3_pride.human.settings import GENERIC_INSTRUCTIONS, READ_TIMEOUT, refuse_anonymous_beyond_this_machine
+from sb3_pride.human.settings import GENERIC_INSTRUCTIONS, MAX_CONNECTIONS, READ_TIMEOUT, refuse_anonymous_beyond_this_machine
 from sb3_pride.human.store import AnswerStore
 
 if TYPE_CHECKING:
     from flask import Flask
 
-#: a token in a logged request line: ``token=...`` in its query string
-TOKEN_IN_URL = re.compile(r"(token=)[^&\s\"']*")
+
+def spelled(text: str) -> str:
+    """A pattern of ``text`` however an address may spell it: each character as itself or percent-encoded (also twice
+    or more, ``%2574``); match it with ``re.IGNORECASE`` for any case."""
+    return "".join(f"(?:{re.escape(char)}|%(?:25)*{ord(char):02x})" for char in text)
+
+
+#: a token in a logged line: ``token=...`` in any case, its name or its ``=`` percent-encoded (``?TOKEN=``,
+#: ``?token%3D``, ``?%74oken=``)
+TOKEN_IN_URL = re.compile(rf"({spelled('token')}{spelled('=')})[^&;\s\"']*", re.IGNORECASE)
+
+
+def mask_tokens(line: str, tokens: Iterable[str] = ()) -> str:
+    """``line`` with every token masked (``...``): after a ``token=`` however spelled (``TOKEN_IN_URL``), and each of
+    ``tokens`` wherever it is (a token typed into the path, or under another parameter's name)."""
+    line = TOKEN_IN_URL.sub(r"\1...", line)
+    for token in tokens:
+        line = line.replace(token, "...")
+    return line
+
+
+class Connections:
+    """
+    A server's open connections, each with when it was accepted: at most ``limit`` of them (the oldest is closed for
+    each new one, so that clients who hold connections cannot lock others out) and none open longer than ``deadline``
+    seconds (``expire()``). A connection is closed by shutting its socket down: the thread reading or writing it wakes
+    at once and ends.
+
+    :param limit: the most connections open at once
+    :param deadline: seconds a connection may stay open: its request received and its answer sent
+    """
+
+    def __init__(self, limit: int = MAX_CONNECTIONS, deadline: float = READ_TIMEOUT):
+        self.limit, self.deadline = limit, deadline
+        self._open: dict[socket.socket, float] = {}  # in the order they were accepted
+        self._lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self._open)
+
+    def admit(self, connection: socket.socket) -> None:
+        """Count in a new connection; beyond ``limit``, close the oldest."""
+        with self._lock:
+            while len(self._open) >= self.limit:
+                self._shut(next(iter(self._open)))
+            self._open[connection] = time.monotonic()
+
+    def expire(self) -> None:
+        """Close the connections open longer than ``deadline``."""
+        now = time.monotonic()
+        with self._lock:
+            for connection in [c for c, since in self._open.items() if now - since > self.deadline]:
+                self._shut(connection)
+
+    def release(self, connection: socket.socket, close: Callable[[], None]) -> None:
+        """``close()`` the ``connection`` whose request is over (no shutdown of this class races it), and forget it."""
+        with self._lock:
+            self._open.pop(connection, None)
+            close()
+
+    def close_all(self) -> None:
+        """Close every open connection (the server stops)."""
+        with self._lock:
+            for connection in list(self._open):
+                self._shut(connection)
+
+    def _shut(self, connection: socket.socket) -> None:
+        del self._open[connection]
+        try:
+            connection.shutdown(socket.SHUT_RDWR)
+        except OSError:  # closed by the client already
+            pass
+
+
+class RequestInput:
+    """
+    A connection's input as its request handler reads it. The app reads its request's body through it, and an
+    ``Expect: 100-continue`` is answered only then: a request refused before its body is read is not sent the body.
+    Once the answer has begun, at most ``leftover`` more bytes are read (werkzeug reads what the app left of a body
+    before it closes the connection, up to 10 GB): the rest of a body of at most ``MAX_BODY`` bytes, so that its client
+    sees the answer, and nothing of a longer or chunked one, whose connection is closed unread instead.
+
+    :param stream: the connection's buffered input
+    :param send_continue: writes the ``100 Continue`` interim answer
+    """
+
+    def __init__(self, stream: Any, send_continue: Callable[[], None]):
+        self._stream, self._send_continue = stream, send_continue
+        #: an ``Expect: 100-continue`` waits for the app's first read of the body
+        self.expect_continue = False
+        #: the answer has begun: the app has read all it will
+        self.answered = False
+        #: bytes that may still be read once ``answered``
+        self.leftover = 0
+
+    def _body(self) -> None:
+        if self.expect_continue:
+            self.expect_continue = False
+            self._send_continue()
+
+    def read(self, size: int | None = -1) -> bytes:
+        if not self.answered:
+            self._body()
+            return self._stream.read(size)
+        size = self.leftover if size is None or size < 0 else min(size, self.leftover)
+        data = self._stream.read1(size) if size > 0 else b""  # read1: what has come, never waiting for more
+        self.leftover -= len(data)
+        return data
+
+    def readinto(self, buffer: Any) -> int:
+        if not self.answered:
+            self._body()
+            return self._stream.readinto(buffer)
+        data = self.read(len(buffer))
+        buffer[: len(data)] = data
+        return len(data)
+
+    def readline(self, size: int | None = -1) -> bytes:
+        if self.answered:
+            return b""
+        self._body()
+        return self._stream.readline(size)
+
+    def __getattr__(self, name: str) -> Any:  # close, closed, ...: the stream's own
+        return getattr(self._stream, name)
 
 
 def quiet_request_handler(read_timeout: float = READ_TIMEOUT) -> type:
     """
     werkzeug's request handler without a console line per request (the page polls every second), tokens masked in
-    the lines it does print, and ``read_timeout`` seconds for each read or write of a connection: a client that
-    stops half-way through its request (or never reads the answer) is dropped then, and its thread freed.
+    the lines it does print (``mask_tokens``, with the server's ``tokens``), ``read_timeout`` seconds for each read or
+    write of a connection, and its input read through ``RequestInput``: no body is read past a refusal.
     """
     from werkzeug.serving import WSGIRequestHandler
 
     class QuietRequestHandler(WSGIRequestHandler):
         timeout = read_timeout  # socketserver sets it on the connection before the request is read
 
+        def setup(self) -> None:
+            super().setup()
+            self.rfile = RequestInput(self.rfile, self._send_continue)  # type: ignore[assignment]
+
+        def _send_continue(self) -> None:
+            self.wfile.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+            self.wfile.flush()
+
+        def handle_expect_100(self) -> bool:  # http.server would answer it before the app has seen the request
+            return True
+
+        def run_wsgi(self) -> None:
+            body = self.rfile
+            assert isinstance(body, RequestInput)
+            body.expect_continue = self.headers.get("Expect", "").lower().strip(" \t") == "100-continue"
+            del self.headers["Expect"]  # werkzeug would answer it too
+            length = self.headers.get("Content-Length", "").strip()
+            chunked = "chunked" in self.headers.get("Transfer-Encoding", "").lower()
+            body.leftover = int(length) if length.isdigit() and int(length) <= MAX_BODY and not chunked else 0
+            super().run_wsgi()
+
+        def send_response(self, code: int, message: str | None = None) -> None:
+            if isinstance(self.rfile, RequestInput):
+                self.rfile.answered = True
+            super().send_response(code, message)
+
         def log_request(self, code: Any = "-", size: Any = "-") -> None:
             if isinstance(code, int) and code < 400:  # an HTTPStatus is an int
                 return
-            # werkzeug builds the line from self.path: masked there for the call, then put back
-            path = getattr(self, "path", None)
-            if path is not None:
-                self.path = TOKEN_IN_URL.sub(r"\1...", path)
-            try:
-                super().log_request(code, size)
-            finally:
-                if path is not None:
-                    self.path = path
+            super().log_request(code, size)
 
         def log(self, type: str, message: str, *args: Any) -> None:  # every line (errors too), masked as a whole
             line = message % args if args else message
-            super().log(type, "%s", TOKEN_IN_URL.sub(r"\1...", line))
+            super().log(type, "%s", mask_tokens(line, getattr(self.server, "tokens", ())))
 
     return QuietRequestHandler
+
+
+def guarded_server(host: str, port: int, app: Any, handler: type, connections: Connections, tokens: Iterable[str] = ()) -> Any:
+    """
+    werkzeug's threaded server (a thread per connection) over ``connections``: each accepted connection is admitted
+    there (the oldest closed beyond its limit), and the ones past their deadline are closed between two polls.
+
+    :param tokens: masked wherever they appear in the console's lines
+    :raises SystemExit: werkzeug's way of saying the port cannot be bound (it printed why)
+    """
+    from werkzeug.serving import ThreadedWSGIServer
+
+    class GuardedServer(ThreadedWSGIServer):
+        block_on_close = False  # stop() waits for no connection's thread: each is shut down
+
+        def verify_request(self, request: Any, client_address: Any) -> bool:
+            connections.admit(request)
+            return True
+
+        def shutdown_request(self, request: Any) -> None:
+            connections.release(request, lambda: ThreadedWSGIServer.shutdown_request(self, request))
+
+        def service_actions(self) -> None:  # between two polls of serve_forever
+            connections.expire()
+
+        def server_close(self) -> None:
+            super().server_close()
+            connections.close_all()
+
+    server = GuardedServer(host, port, app, handler=handler)
+    server.tokens = tuple(tokens)
+    return server
 
 
 class WebServer:
@@ -62,7 +243,10 @@ class WebServer:
     :param clips: where its clips are
     :param annotators: the annotators' names, each given a new secret token (None: one person, no token)
     :param instructions: gives the instructions the page shows
-    :param read_timeout: seconds each read or write of a connection may take (``quiet_request_handler``)
+    :param read_timeout: seconds a connection may stay open, its request received and its answer sent (and so each
+        read or write of it): a client that sends its request slowly, half-way or never reads the answer is dropped
+        then, and its thread freed
+    :param max_connections: the most connections open at once (``Connections``); set before ``start()``
     """
 
     def __init__(
@@ -72,12 +256,16 @@ class WebServer:
         annotators: list[str] | None = None,
         instructions: Callable[[], str] = lambda: GENERIC_INSTRUCTIONS,
         read_timeout: float = READ_TIMEOUT,
+        max_connections: int = MAX_CONNECTIONS,
     ):
         self.store, self.clips, self.instructions, self.read_timeout = store, clips, instructions, read_timeout
+        self.max_connections = max_connections
         #: annotator -> their secret token: made with the server, never saved (a loaded teacher makes new ones)
         self.tokens = {name: secrets.token_urlsafe(18) for name in annotators or ()}
         #: the port it serves on, once started (None before)
         self.port: int | None = None
+        #: the open connections, once started (None before)
+        self.connections: Connections | None = None
         self._server: Any = None
 
     @cached_property
@@ -101,22 +289,20 @@ class WebServer:
             return self._server.server_port
         if not self.tokens:  # a host set after the teacher was made, or a teacher saved with another one
             refuse_anonymous_beyond_this_machine(host)
-        from werkzeug.serving import make_server
-
+        connections = Connections(self.max_connections, self.read_timeout)
+        handler = quiet_request_handler(self.read_timeout)
         try:
-            self._server = make_server(
-                host, port, self.app, threaded=True, request_handler=quiet_request_handler(self.read_timeout)
-            )
+            self._server = guarded_server(host, port, self.app, handler, connections, self.tokens.values())
         except (OSError, SystemExit) as error:  # werkzeug exits (SystemExit) on a port in use, after saying so
             raise ValueError(
                 f"port {port} on {host} is in use or cannot be bound: pass another, WebTeacher(port=...)"
             ) from error
-        self.port = self._server.server_port
+        self.port, self.connections = self._server.server_port, connections
         threading.Thread(target=self._server.serve_forever, args=(0.1,), name="WebTeacher", daemon=True).start()
         return self.port
 
     def stop(self) -> None:
-        """Stop serving (the port is freed)."""
+        """Stop serving (the port is freed, every open connection closed)."""
         if self._server is not None:
             self._server.shutdown()
             self._server.server_close()

@@ -16,8 +16,11 @@ LOCAL_HOSTS = ("127.0.0.1", "localhost", "::1")
 ANNOTATOR_NAME = re.compile(r"[A-Za-z0-9_.-]{1,40}")
 #: the name of the one person of ``annotators=None`` in the agreement report and the logger keys
 ANONYMOUS = "anonymous"
-#: seconds a connection may take to send its request: a half-sent request is dropped then (``read_timeout``)
+#: seconds a connection may stay open, its request received and its answer sent: a request sent half-way or slowly is
+#: dropped then (``read_timeout``)
 READ_TIMEOUT = 30.0
+#: the most connections the page's server keeps open at once: the oldest is closed for a new one (``WebServer``)
+MAX_CONNECTIONS = 100
 #: seconds a query may stay shown to an annotator who does not answer it before an idle annotator is handed it
 #: (``hand_over_after``)
 HAND_OVER_AFTER = 300.0

@@ -251,8 +251,8 @@ class AnswerStore:
         """
         The next question for ``name``: a ready query they have not answered that still needs answers (those others
         already answer first: they finish sooner), else (for the one shown) one preloaded for someone else, or one
-        shown to someone else for more than ``hand_over_after`` seconds; in place of it, a known-answer question at
-        ``known_answer_rate``.
+        shown to someone else for more than ``hand_over_after`` seconds (a known-answer question too, if its pair may
+        be shown to them); in place of it, a known-answer question at ``known_answer_rate``.
         """
         k = self.answers_per_query
         candidates = [
@@ -270,11 +270,13 @@ class AnswerStore:
                 for other, (shown, since) in session.shown_since.items()
                 if now - since > self.hand_over_after and session.queues.get(other, [])[:1] == [shown]
             )
+            # a known-answer question goes over as a query does, when its pair may be shown to them: one that never
+            # went would tell itself apart
             taken = next(
                 (
                     (other, q)
                     for other, q in (*preloaded, *overdue)
-                    if other != name and q.known is None and name not in q.answers
+                    if other != name and name not in q.answers and (q.known is None or self.quality.may_take(session, name, q))
                 ),
                 None,
             )
@@ -287,6 +289,8 @@ class AnswerStore:
             other, real = taken
             session.queues[other].remove(real)
             real.holders.discard(other)
+            if real.known is not None:
+                session.known_shown.setdefault(name, set()).add(real.pair)
         return real
 
     # answers ----------------------------------------------------------------------------------------------------
@@ -317,11 +321,13 @@ class AnswerStore:
                 raise Refused("unknown", f"no question {question_id!r} in feedback session {session.number}")
             if name in question.answers:
                 raise Refused("conflict", f"question {question_id!r} is answered already by you (undo first)")
-            if question.known is None and len(question.answers) >= self.answers_per_query:
-                raise Refused("conflict", f"query {question_id!r} has all its answers already")
+            # a question shown to someone else is refused alike whatever it is: a query, one with all its answers, or a
+            # known-answer question (two annotators comparing refusals would tell them apart)
             handed = session.queues.get(name, [])
             if not handed or handed[0] is not question:
                 raise Refused("not shown", f"question {question_id!r} is not the one shown to you")
+            if question.known is None and len(question.answers) >= self.answers_per_query:
+                raise Refused("conflict", f"question {question_id!r} has all its answers already")
             value = math.nan if label is None else float(label) + 0.0  # + 0.0: -0.0 becomes 0.0
             if question.known is None:
                 # journaled (flushed to disk) first, then kept, so that a failed write changes nothing
