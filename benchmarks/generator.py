@@ -71,8 +71,11 @@ def kept_name(width: int, blocks: int, steps: int, drawn: int, kept: int) -> str
 
 def table(paths: list[Path]) -> str:
     """One markdown row per configuration: task, what it models, normalization, dynamics error ratio, novelty, seconds."""
-    lines = ["| task | generator | models | normalization | fit s | s per 10k samples | dynamics error | ratio to real | "
-             "ratio, held-out anchors | novelty |", "|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = [
+        "| task | generator | models | normalization | fit s | s per 10k samples | dynamics error | ratio to real | "
+        "ratio, held-out anchors | novelty |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for path in paths:
         results = json.loads(path.read_text())
         task = results.get("task", "walker-walk")  # files written before --task: walker-walk
@@ -80,10 +83,12 @@ def table(paths: list[Path]) -> str:
             models = {"next_state": "[s, a, s']", "delta": "[s, a, s' − s]"}.get(row.get("representation", ""), "—")
             normalization = row.get("normalization", "per_dimension" if "representation" in row else "—")
             heldout = row.get("heldout_anchor_error_ratio", float("nan"))  # only near-real rows measured after it existed
-            lines.append(f"| {task} | {row['name']} | {models} | {normalization} | {row['fit_seconds']:.1f} | "
-                         f"{row['seconds_per_10k_samples']:.2f} | {row['dynamics_error']:.2f} | "
-                         f"{row['dynamics_error_ratio']:.2f} | {'—' if np.isnan(heldout) else f'{heldout:.2f}'} | "
-                         f"{row['novelty_ratio']:.2f} |")  # fmt: skip
+            lines.append(
+                f"| {task} | {row['name']} | {models} | {normalization} | {row['fit_seconds']:.1f} | "
+                f"{row['seconds_per_10k_samples']:.2f} | {row['dynamics_error']:.2f} | "
+                f"{row['dynamics_error_ratio']:.2f} | {'—' if np.isnan(heldout) else f'{heldout:.2f}'} | "
+                f"{row['novelty_ratio']:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -138,14 +143,30 @@ def main() -> None:
         if config:
             config = dict(task=args.task, representation=args.representation, normalization=args.normalization, **config)
         fidelity = measure_fidelity(yardstick, real, synthetic, obs_dim, action_dim, refit=False, anchors=anchors)
-        row = dict(name=name, **config, fit_seconds=round(fit_seconds, 2), generate_seconds=round(generate_seconds, 2),
-                   seconds_per_10k_samples=round(generate_seconds / max(len(synthetic), 1) * 10_000, 2),
-                   **{k: round(v, 4) for k, v in vars(fidelity).items()})  # fmt: skip
+        row = dict(
+            name=name,
+            **config,
+            fit_seconds=round(fit_seconds, 2),
+            generate_seconds=round(generate_seconds, 2),
+            seconds_per_10k_samples=round(generate_seconds / max(len(synthetic), 1) * 10_000, 2),
+            **{k: round(v, 4) for k, v in vars(fidelity).items()},
+        )
         rows.append(row)
         print(json.dumps(row), flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(json.dumps(dict(task=args.task, transitions=args.transitions, samples=args.samples, seed=args.seed,
-                                            yardstick_fit_seconds=round(yardstick_seconds, 2), rows=rows), indent=1))  # fmt: skip
+        args.out.write_text(
+            json.dumps(
+                dict(
+                    task=args.task,
+                    transitions=args.transitions,
+                    samples=args.samples,
+                    seed=args.seed,
+                    yardstick_fit_seconds=round(yardstick_seconds, 2),
+                    rows=rows,
+                ),
+                indent=1,
+            )
+        )
 
     def wanted(name: str) -> bool:
         return name not in done and (args.only is None or name in args.only)
@@ -176,8 +197,16 @@ def main() -> None:
         return add_states_to_next_states(vectors, obs_dim, action_dim, 1.0) if state_changes else vectors
 
     def model(width: int, blocks: int, train_steps: int, sample_steps: int, warm_start: bool = False) -> ElucidatedDiffusion:
-        return ElucidatedDiffusion(dim, width=width, n_blocks=blocks, train_steps=train_steps, sample_steps=sample_steps,
-                                   warm_start=warm_start, normalization=args.normalization, seed=args.seed)  # fmt: skip
+        return ElucidatedDiffusion(
+            dim,
+            width=width,
+            n_blocks=blocks,
+            train_steps=train_steps,
+            sample_steps=sample_steps,
+            warm_start=warm_start,
+            normalization=args.normalization,
+            seed=args.seed,
+        )
 
     # unconditional generation (the paper's and SynthER's), size x budget x sampler steps
     fitted: dict[tuple, tuple[ElucidatedDiffusion, float]] = {}
@@ -197,8 +226,17 @@ def main() -> None:
             diffusion.sample_steps = sample_steps
             start = time.perf_counter()
             synthetic = decode(diffusion.sample(args.samples))
-            report(f"{name} {sample_steps} heun", synthetic, fit_seconds, time.perf_counter() - start, mode="unconditional",
-                   width=width, blocks=blocks, train_steps=steps, sample_steps=sample_steps)  # fmt: skip
+            report(
+                f"{name} {sample_steps} heun",
+                synthetic,
+                fit_seconds,
+                time.perf_counter() - start,
+                mode="unconditional",
+                width=width,
+                blocks=blocks,
+                train_steps=steps,
+                sample_steps=sample_steps,
+            )
 
     # warm starts across retrains: data grows 10k -> 15k -> 20k, 1000 steps each, as PRIDE's retrains do
     for width, blocks in [(256, 2), (256, 3)]:
@@ -211,8 +249,17 @@ def main() -> None:
             fit_seconds = diffusion.fit(encode(real[:n])).seconds  # the cost of one retrain: the last one
         start = time.perf_counter()
         synthetic = decode(diffusion.sample(args.samples))
-        report(name, synthetic, fit_seconds, time.perf_counter() - start, mode="unconditional, warm", width=width,
-               blocks=blocks, train_steps=1000, sample_steps=16)  # fmt: skip
+        report(
+            name,
+            synthetic,
+            fit_seconds,
+            time.perf_counter() - start,
+            mode="unconditional, warm",
+            width=width,
+            blocks=blocks,
+            train_steps=1000,
+            sample_steps=16,
+        )
 
     # anchored to real data: SDEdit from real transitions, and s' inpainted given a real (s, a)
     for (width, blocks, steps), (diffusion, fit_seconds) in fitted.items():
@@ -225,15 +272,36 @@ def main() -> None:
             diffusion.sample_steps = 8
             start = time.perf_counter()
             synthetic = decode(diffusion.sample_near(encode(anchor_rows), start_sigma))
-            report(name, synthetic, fit_seconds, time.perf_counter() - start, anchor_indices, mode="sdedit", start_sigma=start_sigma,
-                   width=width, blocks=blocks, train_steps=steps, sample_steps=8)  # fmt: skip
+            report(
+                name,
+                synthetic,
+                fit_seconds,
+                time.perf_counter() - start,
+                anchor_indices,
+                mode="sdedit",
+                start_sigma=start_sigma,
+                width=width,
+                blocks=blocks,
+                train_steps=steps,
+                sample_steps=8,
+            )
         name = f"s' given real (s, a) {width}x{blocks} {steps} steps"
         if wanted(name):
             diffusion.sample_steps = 16
             start = time.perf_counter()
             synthetic = decode(diffusion.sample_given(encode(anchor_rows), np.arange(obs_dim + action_dim)))
-            report(name, synthetic, fit_seconds, time.perf_counter() - start, anchor_indices, mode="inpaint s'", width=width,
-                   blocks=blocks, train_steps=steps, sample_steps=16)  # fmt: skip
+            report(
+                name,
+                synthetic,
+                fit_seconds,
+                time.perf_counter() - start,
+                anchor_indices,
+                mode="inpaint s'",
+                width=width,
+                blocks=blocks,
+                train_steps=steps,
+                sample_steps=16,
+            )
 
     # samples per generation: draw more near-real samples (σ 0.25) than are kept and keep the --samples that a second
     # dynamics ensemble (another seed, PRIDE's own filter settings) trusts most, as synthetic_keep_quantile does; the
@@ -254,9 +322,21 @@ def main() -> None:
             start = time.perf_counter()
             synthetic = decode(diffusion.sample_near(encode(real[anchor_indices]), 0.25))
             kept = np.argsort(judge.errors(*split_transitions(synthetic, obs_dim, action_dim)), kind="stable")[: args.samples]
-            report(name, synthetic[kept], fit_seconds, time.perf_counter() - start, anchor_indices[kept], mode="sdedit, filtered",
-                   start_sigma=0.25, width=width, blocks=blocks, train_steps=steps, sample_steps=8, drawn=drawn,
-                   filter_fit_seconds=round(judge_seconds, 2))  # fmt: skip
+            report(
+                name,
+                synthetic[kept],
+                fit_seconds,
+                time.perf_counter() - start,
+                anchor_indices[kept],
+                mode="sdedit, filtered",
+                start_sigma=0.25,
+                width=width,
+                blocks=blocks,
+                train_steps=steps,
+                sample_steps=8,
+                drawn=drawn,
+                filter_fit_seconds=round(judge_seconds, 2),
+            )
 
 
 if __name__ == "__main__":

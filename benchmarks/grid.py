@@ -59,9 +59,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import run
 
 GRID_KEYS = {
-    "description", "tier", "out", "eval_freq", "eval_episodes", "timesteps", "summary", "comparisons", "pride_settings",
-    "claims", "check", "repeats", "runs",
-}  # fmt: skip
+    "description",
+    "tier",
+    "out",
+    "eval_freq",
+    "eval_episodes",
+    "timesteps",
+    "summary",
+    "comparisons",
+    "pride_settings",
+    "claims",
+    "check",
+    "repeats",
+    "runs",
+}
 #: what a claim of a grid file takes, and the metrics it can be read on
 CLAIM_KEYS = {"name", "tasks", "x", "y", "metric", "p", "lower", "seeds"}
 CLAIM_METRICS = ("return", "last_corr")
@@ -120,8 +131,10 @@ def load_grid(path: Path) -> dict[str, Any]:
             raise GridError(f"{where}: missing {', '.join(missing)}")
     settings = grid.get("pride_settings", {})
     if not isinstance(settings, dict) or {"max_feedback", "synthetic_ratio"} & set(settings):
-        raise GridError(f"{path}: pride_settings is a mapping of PRIDE's arguments other than those its blocks set "
-                        "(max_feedback, synthetic_ratio: feedback, ratios)")  # fmt: skip
+        raise GridError(
+            f"{path}: pride_settings is a mapping of PRIDE's arguments other than those its blocks set "
+            "(max_feedback, synthetic_ratio: feedback, ratios)"
+        )
     if not isinstance(grid.get("claims", []), list):
         raise GridError(f"{path}: claims is a list of claims, each a mapping of {', '.join(sorted(CLAIM_KEYS))}")
     for i, claim in enumerate(grid.get("claims") or []):
@@ -153,8 +166,9 @@ def check_task_check(check: Any, where: str) -> None:
         if key in check and not (type(check[key]) in (int, float) and math.isfinite(check[key])):
             raise GridError(f"{where}: {key} is a number (in the metric's units), got {check[key]!r}")
     if check["rise"] < 0:
-        raise GridError(f"{where}: rise is how far the last evaluations must rise above the first: 0 or more, "
-                        f"got {check['rise']!r}")  # fmt: skip
+        raise GridError(
+            f"{where}: rise is how far the last evaluations must rise above the first: 0 or more, got {check['rise']!r}"
+        )
 
 
 def check_claim(claim: Any, where: str) -> None:
@@ -163,8 +177,12 @@ def check_claim(claim: Any, where: str) -> None:
     for side in ("x", "y"):
         value = claim[side]
         budget = value[1] if isinstance(value, list) and len(value) == 2 else None
-        if not (isinstance(value, list) and len(value) == 2 and isinstance(value[0], str)
-                and (budget is None or (type(budget) is int and budget > 0))):  # fmt: skip
+        if not (
+            isinstance(value, list)
+            and len(value) == 2
+            and isinstance(value[0], str)
+            and (budget is None or (type(budget) is int and budget > 0))
+        ):
             raise GridError(f"{where}: {side} is [configuration, budget set] (the budget null for SAC), got {value!r}")
     tasks = claim["tasks"]
     if not (isinstance(tasks, list) and tasks and all(isinstance(task, str) for task in tasks)):
@@ -216,7 +234,10 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
     blocks = []
     for i, block in enumerate(grid["runs"]):
         where = f"{grid['path']}, runs[{i}]"
-        configurations = [(label, configuration(label, variants, where)) for label in as_list(block["configurations"], where, "configurations")]  # fmt: skip
+        configurations = [
+            (label, configuration(label, variants, where))
+            for label in as_list(block["configurations"], where, "configurations")
+        ]
         blocks.append((block, where, configurations, parse_seeds(block["seeds"], where)))
     specs, seen = [], set()
     for block, where, configurations, seeds in blocks:
@@ -228,10 +249,21 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
             feedbacks = as_list(block["feedback"], where, "feedback") if "feedback" in block else [kwargs.get("max_feedback")]
             ratios = as_list(block["ratios"], where, "ratios") if "ratios" in block else [kwargs.get("synthetic_ratio")]
             for feedback, ratio in itertools.product(feedbacks, ratios):
-                spec = dict(algo=config["algo"], task=task, seed=seed, feedback=feedback, ratio=ratio, tier=tier,
-                            eval_freq=grid.get("eval_freq", 5000), eval_episodes=grid.get("eval_episodes", 5),
-                            timesteps=grid.get("timesteps", 0), tag=config["tag"], overrides=config["overrides"],
-                            configuration=label, variant=config["variant"])  # fmt: skip
+                spec = dict(
+                    algo=config["algo"],
+                    task=task,
+                    seed=seed,
+                    feedback=feedback,
+                    ratio=ratio,
+                    tier=tier,
+                    eval_freq=grid.get("eval_freq", 5000),
+                    eval_episodes=grid.get("eval_episodes", 5),
+                    timesteps=grid.get("timesteps", 0),
+                    tag=config["tag"],
+                    overrides=config["overrides"],
+                    configuration=label,
+                    variant=config["variant"],
+                )
                 for key in ("seconds_per_answer", "learned_reward"):
                     if key in config:
                         spec[key] = config[key]

@@ -113,14 +113,23 @@ def markdown(data: dict[str, Any]) -> str:
     for configuration, runs in data["pace"]["runs"].items():
         for seed, r in sorted(runs.items()):
             awaiting = "—" if r["steps_awaiting"] is None else str(r["steps_awaiting"])
-            lines.append(f"| `{configuration}` | {seed} | {r['seconds']:.0f} | {r['asked']} | {awaiting} | {r['return']:.1f} | "
-                         f"{r['final_return']:.1f} |")  # fmt: skip
-    lines += ["", f"Verdict: `{json.dumps(data['pace']['verdict'])}`", "",
-              "The runs shared a 2-core machine with other runs, under uneven load: their wall times differ by more than "
-              "the teacher's pace. `benchmarks/results/speed_feedback_pace.json` times both modes in one process, in "
-              "turns (`benchmarks/speed.py`).", "",
-              "## B-Pref's mistake teacher (10% of labels flipped): without and with robust labels", "",
-              "| configuration | seed | return | final return |", "|---|---|---|---|"]  # fmt: skip
+            lines.append(
+                f"| `{configuration}` | {seed} | {r['seconds']:.0f} | {r['asked']} | {awaiting} | {r['return']:.1f} | "
+                f"{r['final_return']:.1f} |"
+            )
+    lines += [
+        "",
+        f"Verdict: `{json.dumps(data['pace']['verdict'])}`",
+        "",
+        "The runs shared a 2-core machine with other runs, under uneven load: their wall times differ by more than "
+        "the teacher's pace. `benchmarks/results/speed_feedback_pace.json` times both modes in one process, in "
+        "turns (`benchmarks/speed.py`).",
+        "",
+        "## B-Pref's mistake teacher (10% of labels flipped): without and with robust labels",
+        "",
+        "| configuration | seed | return | final return |",
+        "|---|---|---|---|",
+    ]
     for configuration, runs in data["noise"]["runs"].items():
         for seed, r in sorted(runs.items()):
             lines.append(f"| `{configuration}` | {seed} | {r['return']:.1f} | {r['final_return']:.1f} |")
@@ -131,8 +140,12 @@ def markdown(data: dict[str, Any]) -> str:
 def main() -> None:
     pace_runs, noise_runs = finished_runs(PACE_GRID), finished_runs(NOISE_GRID)
     oracle_rows, _, _ = results_page.collect([ORACLE_GRID])
-    oracle = [float(v) for row in oracle_rows.values() if row["configuration"] == "pebble"
-              for v in plot.primary_returns(results_page.runs_of(row))]  # fmt: skip
+    oracle = [
+        float(v)
+        for row in oracle_rows.values()
+        if row["configuration"] == "pebble"
+        for v in plot.primary_returns(results_page.runs_of(row))
+    ]
     data = {
         "generated_by": "python benchmarks/people_in_the_loop.py",
         "pace": {"grid": str(PACE_GRID.relative_to(run.ROOT)), "runs": pace_runs, "verdict": pace(pace_runs)},

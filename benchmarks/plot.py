@@ -211,8 +211,9 @@ def improvements(groups) -> dict:
             largest = max(r[0]["settings"]["feedback"] for _, r in pebbles)
             budget = settings["feedback"] if settings.get("tag") else largest
             if settings.get("tag") or settings["feedback"] < largest:
-                rivals = [(n, r) for n, r in pebbles if not r[0]["settings"].get("tag")
-                          and r[0]["settings"]["feedback"] == budget]  # fmt: skip
+                rivals = [
+                    (n, r) for n, r in pebbles if not r[0]["settings"].get("tag") and r[0]["settings"]["feedback"] == budget
+                ]
                 for rival_name, rival in rivals:
                     if min(len(runs), len(rival)) >= 2:
                         pairs[f"{task}: {name} > {rival_name}"] = [primary_returns(g)[:, None] for g in (runs, rival)]
@@ -223,13 +224,25 @@ def improvements(groups) -> dict:
         budgets = {max((r[0]["settings"]["feedback"] for _, r in pebbles), default=None), settings["feedback"]}
         rivals = [(n, r) for n, r in pebbles if r[0]["settings"]["feedback"] in budgets]
         if settings["ratio"] == 0.5:  # Fig. 5: u = 0.5 against the other ratios of the same variant (tag)
-            rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
-                       and r[0]["settings"]["feedback"] == settings["feedback"] and r[0]["settings"]["ratio"] != 0.5
-                       and variant(r[0]["settings"]) == variant(settings)]  # fmt: skip
+            rivals += [
+                (n, r)
+                for (t, n), r in groups.items()
+                if t == task
+                and r[0]["settings"]["algo"] == "pride"
+                and r[0]["settings"]["feedback"] == settings["feedback"]
+                and r[0]["settings"]["ratio"] != 0.5
+                and variant(r[0]["settings"]) == variant(settings)
+            ]
         if variant(settings) not in ("", "faithful"):  # an ablation: a variant against "faithful" PRIDE
-            rivals += [(n, r) for (t, n), r in groups.items() if t == task and r[0]["settings"]["algo"] == "pride"
-                       and variant(r[0]["settings"]) == "faithful" and r[0]["settings"]["ratio"] == settings["ratio"]
-                       and r[0]["settings"]["feedback"] == settings["feedback"]]  # fmt: skip
+            rivals += [
+                (n, r)
+                for (t, n), r in groups.items()
+                if t == task
+                and r[0]["settings"]["algo"] == "pride"
+                and variant(r[0]["settings"]) == "faithful"
+                and r[0]["settings"]["ratio"] == settings["ratio"]
+                and r[0]["settings"]["feedback"] == settings["feedback"]
+            ]
         for rival_name, rival in rivals:
             if min(len(runs), len(rival)) >= 2:
                 pairs[f"{task}: {name} > {rival_name}"] = [
@@ -245,8 +258,14 @@ def probabilities_of_improvement(pairs: dict) -> dict:
     if not pairs:
         return {}
     point, intervals = bootstrap(pairs, metrics.probability_of_improvement)
-    return {key: {"p": float(np.ravel(point[key])[0]), "ci95": [float(np.ravel(bound)[0]) for bound in intervals[key]],
-                  "seeds": [len(pairs[key][0]), len(pairs[key][1])]} for key in sorted(pairs)}  # fmt: skip
+    return {
+        key: {
+            "p": float(np.ravel(point[key])[0]),
+            "ci95": [float(np.ravel(bound)[0]) for bound in intervals[key]],
+            "seeds": [len(pairs[key][0]), len(pairs[key][1])],
+        }
+        for key in sorted(pairs)
+    }
 
 
 def improvement_row(key: str, value: dict) -> str:
@@ -261,11 +280,21 @@ def diagnostics(runs: list[dict]) -> dict[str, float]:
     """
     # the last retrain's ratios too: the dynamics ensemble that judges them is warm-started and improves over a run,
     # and a weaker judge reads every ratio closer to 1, so the mean over retrains is flattered by the early ones
-    last = {"corr": "reward_model/true_reward_corr", "critic": "train/critic_loss", "actor": "train/actor_loss",
-            "critic_real": "train/critic_loss_real", "q_real": "train/q_real",
-            "dynamics_last": "diffusion/dynamics_error_ratio", "heldout_last": "diffusion/heldout_anchor_error_ratio"}  # fmt: skip
-    over_retrains = {"dynamics": "diffusion/dynamics_error_ratio", "kept": "diffusion/kept_dynamics_error_ratio",
-                     "heldout": "diffusion/heldout_anchor_error_ratio", "novelty": "diffusion/novelty_ratio"}  # fmt: skip
+    last = {
+        "corr": "reward_model/true_reward_corr",
+        "critic": "train/critic_loss",
+        "actor": "train/actor_loss",
+        "critic_real": "train/critic_loss_real",
+        "q_real": "train/q_real",
+        "dynamics_last": "diffusion/dynamics_error_ratio",
+        "heldout_last": "diffusion/heldout_anchor_error_ratio",
+    }
+    over_retrains = {
+        "dynamics": "diffusion/dynamics_error_ratio",
+        "kept": "diffusion/kept_dynamics_error_ratio",
+        "heldout": "diffusion/heldout_anchor_error_ratio",
+        "novelty": "diffusion/novelty_ratio",
+    }
     values: dict[str, list[float]] = defaultdict(list)
     for run in runs:
         if run["progress"] is None:
@@ -279,8 +308,10 @@ def diagnostics(runs: list[dict]) -> dict[str, float]:
 
 
 def summary(groups) -> str:
-    lines = ["| task | configuration | seeds | return, last 3 evaluations (mean ± std) | final return (mean ± std) | best return (mean) | area under curve (mean) | final success | success, area under curve |",
-             "|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines = [
+        "| task | configuration | seeds | return, last 3 evaluations (mean ± std) | final return (mean ± std) | best return (mean) | area under curve (mean) | final success | success, area under curve |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
     for (task, name), runs in sorted(groups.items()):
         primary, finals = primary_returns(runs), final_returns(runs)
         bests = np.array([np.max(run["curve"]["true_return"]) for run in runs])
@@ -291,14 +322,23 @@ def summary(groups) -> str:
         lines.append(
             f"| {task} | {name} | {len(runs)} | {primary.mean():.1f} ± {primary.std():.1f} | {finals.mean():.1f} ± {finals.std():.1f} | {bests.mean():.1f} | {areas.mean():.1f} | {success_text} |"
         )
-    lines += ["", "Probability of improvement (return, mean of the last 3 evaluations; rliable, 95% bootstrap CI):", "",
-              "| comparison | seeds | P(X > Y) | 95% CI |", "|---|---|---|---|"]  # fmt: skip
+    lines += [
+        "",
+        "Probability of improvement (return, mean of the last 3 evaluations; rliable, 95% bootstrap CI):",
+        "",
+        "| comparison | seeds | P(X > Y) | 95% CI |",
+        "|---|---|---|---|",
+    ]
     lines += [improvement_row(key, value) for key, value in improvements(groups).items()]
-    lines += ["", "At the end of training (means over the runs that have progress.csv):", "",
-              "| task | configuration | runs | corr(r̂, r) | critic loss | critic loss, real batch | Q, real batch | −actor loss (≈ Q) "
-              "| dynamics error ratio (all retrains) | kept after filter | held-out anchors | novelty "
-              "| dynamics error ratio, last retrain | held-out anchors, last retrain |",
-              "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]  # fmt: skip
+    lines += [
+        "",
+        "At the end of training (means over the runs that have progress.csv):",
+        "",
+        "| task | configuration | runs | corr(r̂, r) | critic loss | critic loss, real batch | Q, real batch | −actor loss (≈ Q) "
+        "| dynamics error ratio (all retrains) | kept after filter | held-out anchors | novelty "
+        "| dynamics error ratio, last retrain | held-out anchors, last retrain |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
 
     def cell(d: dict, key: str, digits: int, sign: float = 1.0) -> str:
         return f"{sign * d[key]:.{digits}f}" if key in d else ""
@@ -306,10 +346,12 @@ def summary(groups) -> str:
     for (task, name), runs in sorted(groups.items()):
         d = diagnostics(runs)
         if d["n"]:
-            lines.append(f"| {task} | {name} | {d['n']} | {cell(d, 'corr', 2)} | {cell(d, 'critic', 3)} | {cell(d, 'critic_real', 3)} | "
-                         f"{cell(d, 'q_real', 1)} | {cell(d, 'actor', 1, -1.0)} | {cell(d, 'dynamics', 2)} | {cell(d, 'kept', 2)} | "
-                         f"{cell(d, 'heldout', 2)} | {cell(d, 'novelty', 2)} | {cell(d, 'dynamics_last', 2)} | "
-                         f"{cell(d, 'heldout_last', 2)} |")  # fmt: skip
+            lines.append(
+                f"| {task} | {name} | {d['n']} | {cell(d, 'corr', 2)} | {cell(d, 'critic', 3)} | {cell(d, 'critic_real', 3)} | "
+                f"{cell(d, 'q_real', 1)} | {cell(d, 'actor', 1, -1.0)} | {cell(d, 'dynamics', 2)} | {cell(d, 'kept', 2)} | "
+                f"{cell(d, 'heldout', 2)} | {cell(d, 'novelty', 2)} | {cell(d, 'dynamics_last', 2)} | "
+                f"{cell(d, 'heldout_last', 2)} |"
+            )
     return "\n".join(lines) + "\n"
 
 
@@ -329,15 +371,28 @@ def compare(groups, pairs: list[list[str]], parser: argparse.ArgumentParser) -> 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--runs", type=Path, nargs="+", default=[Path("benchmarks/results/runs")],
-                        help="folders of runs, pooled (e.g. runs/ and a folder of extra seeds)")  # fmt: skip
+    parser.add_argument(
+        "--runs",
+        type=Path,
+        nargs="+",
+        default=[Path("benchmarks/results/runs")],
+        help="folders of runs, pooled (e.g. runs/ and a folder of extra seeds)",
+    )
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/figures"))
-    parser.add_argument("--only", nargs="+", metavar="LABEL", default=None,
-                        help="figures and summary of these configurations only (labels as in summary.md), e.g. "
-                             "the default against PEBBLE")  # fmt: skip
-    parser.add_argument("--compare", nargs=3, action="append", metavar=("TASK", "X", "Y"),
-                        help="print P(X > Y) for these two configurations (labels as in summary.md) and nothing "
-                             "else; may be repeated")  # fmt: skip
+    parser.add_argument(
+        "--only",
+        nargs="+",
+        metavar="LABEL",
+        default=None,
+        help="figures and summary of these configurations only (labels as in summary.md), e.g. the default against PEBBLE",
+    )
+    parser.add_argument(
+        "--compare",
+        nargs=3,
+        action="append",
+        metavar=("TASK", "X", "Y"),
+        help="print P(X > Y) for these two configurations (labels as in summary.md) and nothing else; may be repeated",
+    )
     args = parser.parse_args()
     groups: dict[tuple[str, str], list[dict]] = defaultdict(list)
     for folder in args.runs:
@@ -363,14 +418,26 @@ def main() -> None:
             if t == task and runs[0]["settings"]["algo"] == "pride":
                 ratios.setdefault(variant(runs[0]["settings"]), set()).add(runs[0]["settings"]["ratio"])
         # PRIDE at u = 0.5, or at the one u a variant ran at (a task's CPU setting)
-        plot_curves(groups, task, lambda s, us=ratios: s["algo"] != "pride" or s["ratio"] == 0.5 or us[variant(s)] == {s["ratio"]},
-                    "true_return", "true return", f"{task} (dashed: PRIDE with less feedback)",
-                    args.out / f"curves_{task}.png")  # fmt: skip
+        plot_curves(
+            groups,
+            task,
+            lambda s, us=ratios: s["algo"] != "pride" or s["ratio"] == 0.5 or us[variant(s)] == {s["ratio"]},
+            "true_return",
+            "true return",
+            f"{task} (dashed: PRIDE with less feedback)",
+            args.out / f"curves_{task}.png",
+        )
         # Fig. 5: each PRIDE variant run at more than one u
         for tag in (tag for tag, us in ratios.items() if len(us) > 1):
-            plot_curves(groups, task, lambda s, tag=tag: s["algo"] == "pride" and variant(s) == tag,
-                        "true_return", "true return", f"{task}: PRIDE's synthetic ratio u" + (f" ({tag})" if tag else ""),
-                        args.out / f"ratio_{task}{'_' + tag if tag else ''}.png")  # fmt: skip
+            plot_curves(
+                groups,
+                task,
+                lambda s, tag=tag: s["algo"] == "pride" and variant(s) == tag,
+                "true_return",
+                "true return",
+                f"{task}: PRIDE's synthetic ratio u" + (f" ({tag})" if tag else ""),
+                args.out / f"ratio_{task}{'_' + tag if tag else ''}.png",
+            )
         plot_curves(
             groups, task, lambda s: True, "success", "success rate", f"{task}: success", args.out / f"success_{task}.png"
         )

@@ -107,9 +107,13 @@ def profile_one(algo: str, env_id: str, timesteps: int, seed: int) -> dict:
     total = time.perf_counter() - start
     per_1k = {bucket: timer.seconds[bucket] * 1000 / timesteps for bucket in BUCKETS}
     per_1k["other"] = total * 1000 / timesteps - sum(per_1k.values())
-    return {"algo": algo, "total_seconds": total, "seconds_per_1k_steps": per_1k,
-            "total_per_1k_steps": total * 1000 / timesteps,
-            "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}  # fmt: skip
+    return {
+        "algo": algo,
+        "total_seconds": total,
+        "seconds_per_1k_steps": per_1k,
+        "total_per_1k_steps": total * 1000 / timesteps,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024,
+    }
 
 
 def main() -> None:
@@ -126,8 +130,18 @@ def main() -> None:
         return
     results = []
     for algo in args.algos:
-        command = [sys.executable, __file__, "--one", algo, "--env", args.env, "--timesteps", str(args.timesteps),
-                   "--seed", str(args.seed)]  # fmt: skip
+        command = [
+            sys.executable,
+            __file__,
+            "--one",
+            algo,
+            "--env",
+            args.env,
+            "--timesteps",
+            str(args.timesteps),
+            "--seed",
+            str(args.seed),
+        ]
         output = subprocess.run(command, capture_output=True, text=True, check=True).stdout
         results.append(json.loads(output.strip().splitlines()[-1]))
     header = f"{'seconds per 1k steps':22s}" + "".join(f"{r['algo']:>10s}" for r in results)

@@ -29,16 +29,22 @@ from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.evaluation import evaluate_policy
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-import run
+from provenance import provenance, system_info, utc_now
 
 from sb3_pride import PEBBLE
 from sb3_pride.reward import VecLearnedReward
 
 #: a PEBBLE that learns Pendulum-v1 in a few thousand steps from 200 scripted labels
 PEBBLE_SETTINGS: dict[str, Any] = dict(
-    learning_starts=500, unsupervised_steps=500, feedback_interval=1000, max_feedback=200, queries_per_session=50,
-    segment_length=25, reward_kwargs=dict(net_arch=(64, 64)), policy_kwargs=dict(net_arch=[64, 64]),
-)  # fmt: skip
+    learning_starts=500,
+    unsupervised_steps=500,
+    feedback_interval=1000,
+    max_feedback=200,
+    queries_per_session=50,
+    segment_length=25,
+    reward_kwargs=dict(net_arch=(64, 64)),
+    policy_kwargs=dict(net_arch=[64, 64]),
+)
 
 
 def zoo_ppo_settings() -> tuple[int, int, dict]:
@@ -86,20 +92,30 @@ def main() -> None:
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
     th.set_num_threads(1)
-    started = run.utc_now()
+    started = utc_now()
     rows = []
     with tempfile.TemporaryDirectory() as folder:
         for seed in args.seeds:
             rows.append(one_seed(seed, args.pebble_steps, args.ppo_steps, args.episodes, Path(folder)))
             row = rows[-1]
-            print(f"seed {seed}: PEBBLE {row['pebble']:.1f} (corr {row['pebble_corr']:.2f}), PPO on r̂ {row['ppo_on_r_hat']:.1f}, "
-                  f"PPO on r {row['ppo_on_true_reward']:.1f}", flush=True)  # fmt: skip
+            print(
+                f"seed {seed}: PEBBLE {row['pebble']:.1f} (corr {row['pebble_corr']:.2f}), PPO on r̂ {row['ppo_on_r_hat']:.1f}, "
+                f"PPO on r {row['ppo_on_true_reward']:.1f}",
+                flush=True,
+            )
     means = {arm: float(np.mean([row[arm] for row in rows])) for arm in ("pebble", "ppo_on_r_hat", "ppo_on_true_reward")}
     print("means: " + ", ".join(f"{arm} {value:.1f}" for arm, value in means.items()))
     if args.out:
-        report = {"command": " ".join(sys.argv), "rows": rows, "means": means, "ppo_settings": zoo_ppo_settings(),
-                  "pebble_settings": PEBBLE_SETTINGS, "version": run.provenance(),
-                  "time": {"started": started, "finished": run.utc_now()}, "system": run.system_info()}  # fmt: skip
+        report = {
+            "command": " ".join(sys.argv),
+            "rows": rows,
+            "means": means,
+            "ppo_settings": zoo_ppo_settings(),
+            "pebble_settings": PEBBLE_SETTINGS,
+            "version": provenance(),
+            "time": {"started": started, "finished": utc_now()},
+            "system": system_info(),
+        }
         Path(args.out).write_text(json.dumps(report, indent=2, default=str))
 
 

@@ -16,19 +16,21 @@ fidelity and timings, SAC losses).
 
 ``settings.json`` records the run's settings, the algorithm's defaults and where the run came from:
 
-- ``version`` (:func:`provenance`): the ``sb3_pride`` version (its ``__version__``, the one source of it), the folder
-  it was imported from, the git commit of the checkout and whether the checkout had uncommitted changes, and the code
-  of the package itself: ``code_tree``, the git tree hash of ``sb3_pride/`` at that commit, and ``code_dirty``, whether
-  ``sb3_pride/`` had changes of its own. Two runs with the same ``code_tree`` and no ``code_dirty`` ran the same
-  package code, whatever else (results, prose) their commits differ by; ``benchmarks/results_page.py`` compares them.
+- ``version`` (``provenance()``, of ``benchmarks/provenance.py``): the ``sb3_pride`` version (its ``__version__``,
+  the one source of it), the folder it was imported from, the git commit of the checkout and whether the checkout had
+  uncommitted changes, and the code of the package itself: ``code_tree``, the git tree hash of ``sb3_pride/`` at that
+  commit, and ``code_dirty``, whether ``sb3_pride/`` had changes of its own. Two runs with the same ``code_tree`` and
+  no ``code_dirty`` ran the same package code, whatever else (results, prose) their commits differ by;
+  ``benchmarks/results_page.py`` compares them.
 - ``time``: ``started`` (when the worker began) and ``finished`` (when the run's last file was written), in UTC,
   ISO 8601; ``finished`` is ``null`` until the run ends, so a run cut off shows as unfinished. The worker writes
   ``settings.json`` at the start and rewrites it, with ``finished``, at the end.
-- ``system`` (:func:`system_info`): the CPU model and the versions of Python, torch, SB3, Gymnasium, MuJoCo,
-  dm_control, Meta-World and shimmy.
+- ``system`` (``system_info()``, of ``benchmarks/provenance.py``): the CPU model and the versions of Python, torch,
+  SB3, Gymnasium, MuJoCo, dm_control, Meta-World and shimmy.
 
 Named configurations (``hyperparams/<tier>/variants.yml``) and grids of them (``benchmarks/grids/*.yml``) are run by
-``benchmarks/grid.py``, which uses this module's functions.
+``benchmarks/grid.py``, which uses this module's functions. Several grid processes may run the same grid: each run
+folder is claimed by the process that runs it (``benchmarks/run_claims.py``).
 """
 
 import argparse
@@ -44,12 +46,24 @@ from pathlib import Path
 from typing import Any
 
 os.environ.setdefault("MUJOCO_GL", "disable")
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from provenance import provenance, system_info, utc_now
+from run_claims import CLAIM, claim_run, claimed_elsewhere
+
+#: what this module takes from provenance.py and run_claims.py, which other benchmarks and the tests reach through it
+__all__ = [
+    "CLAIM",
+    "claim_run",
+    "claimed_elsewhere",
+    "provenance",
+    "system_info",
+    "utc_now",
+]
 
 ROOT = Path(__file__).resolve().parent.parent
 DMC_TASKS = {"walker-walk", "cheetah-run", "quadruped-walk", "walker-run", "finger-spin", "hopper-stand"}
 ALGOS = ("pride", "pebble", "sac")
-#: the file in a run folder that names the grid process running it (``claim_run``)
-CLAIM = "claim"
 
 
 def env_id(task: str) -> str:
@@ -134,8 +148,10 @@ def load_variants(tier: str = "cpu") -> dict[str, dict[str, Any]]:
             problem = f"unknown keys {unknown}" if unknown else f"algo must be one of {ALGOS}, got {entry.get('algo')!r}"
             raise SystemExit(f"{path}: variant {label!r}: {problem}")
         if "reference" in entry and (type(entry["reference"]) is not bool or entry["algo"] == "pride"):
-            raise SystemExit(f"{path}: variant {label!r}: reference is true or false, on a pebble or sac variant (the "
-                             f"task's reference or ceiling), got {entry['reference']!r} on {entry['algo']}")  # fmt: skip
+            raise SystemExit(
+                f"{path}: variant {label!r}: reference is true or false, on a pebble or sac variant (the "
+                f"task's reference or ceiling), got {entry['reference']!r} on {entry['algo']}"
+            )
         entry.setdefault("overrides", {})
         entry.setdefault("tag", label)
         entry.setdefault("description", "")
@@ -184,7 +200,7 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
         if p.default is not p.empty and not p.name.startswith("_"):
             defaults[p.name] = p.default
     if algo == "pride":
-        from sb3_pride.common.generator import TransitionGenerator
+        from sb3_pride.pride.generator import TransitionGenerator
 
         parameters = inspect.signature(TransitionGenerator.__init__).parameters.values()
         defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
@@ -257,90 +273,23 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
         feedbacks = args.feedback or [kwargs.get("max_feedback")]
         ratios = args.ratios or [kwargs.get("synthetic_ratio")]
         for feedback, ratio in itertools.product(feedbacks, ratios):
-            spec = dict(algo=algo, task=task, seed=seed, feedback=feedback, ratio=ratio, tier=args.tier,
-                        eval_freq=args.eval_freq, eval_episodes=args.eval_episodes, timesteps=args.timesteps,
-                        tag=args.tag, overrides=overrides)  # fmt: skip
+            spec = dict(
+                algo=algo,
+                task=task,
+                seed=seed,
+                feedback=feedback,
+                ratio=ratio,
+                tier=args.tier,
+                eval_freq=args.eval_freq,
+                eval_episodes=args.eval_episodes,
+                timesteps=args.timesteps,
+                tag=args.tag,
+                overrides=overrides,
+            )
             if run_name(spec) not in seen:  # SAC ignores feedback and ratio; PEBBLE ignores ratio
                 seen.add(run_name(spec))
                 specs.append(spec)
     return specs
-
-
-def git(folder: Path, *argv: str) -> str | None:
-    """``git argv`` run in ``folder``, its output stripped (``None`` where git fails or is missing)."""
-    try:
-        done = subprocess.run(["git", *argv], cwd=folder, capture_output=True, text=True, timeout=30)
-    except (OSError, subprocess.TimeoutExpired):
-        return None
-    return done.stdout.strip() if done.returncode == 0 else None
-
-
-def provenance() -> dict[str, Any]:
-    """
-    What code made a run: the version of the ``sb3_pride`` imported (its ``__version__``; an editable install's
-    metadata keeps the version it was installed at), the folder it was imported from, and, from the git checkout that
-    folder lies in, the commit, whether the checkout had uncommitted changes to tracked files (``dirty``), the tree
-    hash of ``sb3_pride/`` at that commit (``code_tree``) and whether ``sb3_pride/`` itself differed from it, untracked
-    files included (``code_dirty``). The git fields are ``None`` outside a git checkout (an installed wheel).
-    """
-    import sb3_pride
-
-    package = Path(sb3_pride.__file__).resolve().parent
-    checkout = git(package, "rev-parse", "--show-toplevel")
-    commit = git(package, "rev-parse", "HEAD") if checkout else None
-    found: dict[str, Any] = {"sb3_pride": sb3_pride.__version__, "sb3_pride_path": str(package), "commit": commit, "dirty": None,
-             "code_tree": None, "code_dirty": None}  # fmt: skip
-    if commit is None or checkout is None:
-        return found
-    status = git(package, "status", "--porcelain", "--untracked-files=no")
-    found["dirty"] = None if status is None else bool(status)
-    inside = package.relative_to(Path(checkout).resolve()).as_posix()  # "sb3_pride"
-    found["code_tree"] = git(package, "rev-parse", f"HEAD:{inside}")
-    code_status = git(package, "status", "--porcelain", "--untracked-files=normal", "--", ".")
-    found["code_dirty"] = None if code_status is None else bool(code_status)
-    return found
-
-
-def utc_now() -> str:
-    """The time now, UTC, ISO 8601 to the second (``2025-01-31T12:00:00+00:00``)."""
-    from datetime import datetime, timezone
-
-    return datetime.now(timezone.utc).isoformat(timespec="seconds")
-
-
-def system_info() -> dict[str, str]:
-    """
-    SB3's system info (OS, Python, SB3, PyTorch, NumPy, Gymnasium versions) plus the simulators' versions (MuJoCo,
-    dm_control, Meta-World, shimmy), ``sb3_pride``'s ``__version__`` and the CPU model:
-    the same seed gives the same run only on the same CPU kind and library versions (float rounding differs), so a
-    run records them.
-    """
-    import platform
-    from importlib import metadata
-
-    import torch as th
-    from stable_baselines3.common.utils import get_system_info
-
-    import sb3_pride
-
-    info, _ = get_system_info(print_info=False)
-    for package in ("mujoco", "dm-control", "metaworld", "shimmy"):
-        try:
-            info[package] = metadata.version(package)
-        except metadata.PackageNotFoundError:
-            pass
-    # the package's own __version__, as in provenance(): an editable install's metadata keeps the version it was
-    # installed at
-    info["sb3_pride"] = sb3_pride.__version__
-    cpuinfo = Path("/proc/cpuinfo")
-    models = (
-        [line.split(":", 1)[1].strip() for line in cpuinfo.read_text().splitlines() if line.startswith("model name")]
-        if cpuinfo.exists()
-        else []
-    )
-    info["CPU"] = models[0] if models else platform.processor() or platform.machine()
-    info["PyTorch CPU capability"] = th.backends.cpu.get_cpu_capability()  # which vector kernels torch dispatches to
-    return info
 
 
 def worker(spec: dict[str, Any], folder: Path) -> None:
@@ -395,8 +344,14 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         "system": system_info(),
     }
     (folder / "settings.json").write_text(json.dumps(settings, indent=2, default=str))
-    evaluation = EvalCallback(eval_env, eval_freq=spec["eval_freq"], n_eval_episodes=spec["eval_episodes"],
-                              log_path=str(folder), deterministic=True, verbose=0)  # fmt: skip
+    evaluation = EvalCallback(
+        eval_env,
+        eval_freq=spec["eval_freq"],
+        n_eval_episodes=spec["eval_episodes"],
+        log_path=str(folder),
+        deterministic=True,
+        verbose=0,
+    )
     start = time.time()
     model.learn(n_timesteps, callback=evaluation)
     seconds = time.time() - start
@@ -409,9 +364,14 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         file.write("step,true_return,success\n")
         for i, step in enumerate(data["timesteps"]):
             file.write(f"{step},{returns[i]:.3f},{'' if successes is None else f'{successes[i]:.3f}'}\n")
-    result = {"seconds": seconds, "final_return": float(returns[-1]), "best_return": float(returns.max()),
-              "final_success": None if successes is None else float(successes[-1]),
-              "feedback_asked": getattr(model, "feedback_asked", None), "feedback_labeled": getattr(model, "feedback_labeled", None)}  # fmt: skip
+    result = {
+        "seconds": seconds,
+        "final_return": float(returns[-1]),
+        "best_return": float(returns.max()),
+        "final_success": None if successes is None else float(successes[-1]),
+        "feedback_asked": getattr(model, "feedback_asked", None),
+        "feedback_labeled": getattr(model, "feedback_labeled", None),
+    }
     if getattr(model, "asynchronous_feedback", False):
         result["steps_awaiting_feedback"] = model.steps_awaiting_feedback
     (folder / "result.json").write_text(json.dumps(result, indent=2))
@@ -444,60 +404,6 @@ def needed_runs(spec: dict[str, Any], out: Path) -> list[Path]:
     filled = run_templates(spec, out)
     paths = [*(filled["overrides"].get("prior_preferences") or []), *filter(None, [filled["learned_reward"]])]
     return [Path(path).parent for path in paths if Path(path).parent.parent == out]
-
-
-def process_alive(pid: int) -> bool:
-    """Whether a process of this id runs on this machine."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:  # it runs, as another user
-        return True
-    return True
-
-
-def claim_holders(path: Path) -> list[int] | None:
-    """
-    The process ids a run folder's claim names: the grid process that claimed it, then the worker it started (which
-    goes on if that grid process is stopped); ``[]`` without a claim, ``None`` while one is being written (empty).
-    """
-    text = path.read_text().strip() if path.exists() else ""
-    if not text:
-        return None if path.exists() else []
-    words = text.split()
-    return [int(word) for word in words] if all(word.isdigit() for word in words) else None
-
-
-def claim_run(folder: Path) -> bool:
-    """
-    Claim a run folder for this process, so that another grid process on the same folders leaves it (its ``claim``
-    file holds the process ids, :func:`claim_holders`; a claim none of whose processes lives is taken over): False if
-    a live process holds it.
-    """
-    folder.mkdir(parents=True, exist_ok=True)
-    path = folder / CLAIM
-    for _ in range(2):
-        try:
-            fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-        except FileExistsError:
-            holders = claim_holders(path)
-            if holders is None:  # being written
-                return False
-            if any(process_alive(pid) for pid in holders):
-                return os.getpid() in holders
-            path.unlink(missing_ok=True)
-            continue
-        with os.fdopen(fd, "w") as file:
-            file.write(str(os.getpid()))
-        return True
-    return False
-
-
-def claimed_elsewhere(folder: Path) -> bool:
-    """Whether a live process other than this one holds the run folder's claim."""
-    holders = claim_holders(folder / CLAIM) or []
-    return os.getpid() not in holders and any(process_alive(pid) for pid in holders)
 
 
 def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
@@ -548,8 +454,11 @@ def run_specs(specs: list[dict[str, Any]], out: Path, jobs: int) -> int:
             if process.returncode == 0 and result_path.exists():
                 result = json.loads(result_path.read_text())
                 success = "" if result["final_success"] is None else f", success {result['final_success']:.2f}"
-                print(f"[{finished}/{total}] {run_name(spec)}: {time.time() - started:.0f} s, "
-                      f"final return {result['final_return']:.1f}{success}", flush=True)  # fmt: skip
+                print(
+                    f"[{finished}/{total}] {run_name(spec)}: {time.time() - started:.0f} s, "
+                    f"final return {result['final_return']:.1f}{success}",
+                    flush=True,
+                )
             else:
                 failed += 1
                 print(f"[{finished}/{total}] {run_name(spec)}: FAILED (rc {process.returncode}), see its log.txt", flush=True)

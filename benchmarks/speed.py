@@ -27,7 +27,8 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 
 import numpy as np
 import torch as th
-from run import load_variants, merge, parse_overrides, provenance, utc_now
+from provenance import provenance, utc_now
+from run import load_variants, merge, parse_overrides
 from stable_baselines3 import SAC
 
 import sb3_pride
@@ -175,9 +176,19 @@ def main() -> None:
     kwargs.update(
         {name: merge(tier_kwargs(algo, args.env, args.as_tier), changed) for name, (algo, changed) in variants.items()}
     )
-    report = {"env": args.env, "timesteps": args.timesteps, "repeats": args.repeats, "as_tier": args.as_tier,
-              "seed": args.seed, "version": version, "started": started, "ended": utc_now(), "kwargs": kwargs, "runs": results,
-              "medians": medians}  # fmt: skip
+    report = {
+        "env": args.env,
+        "timesteps": args.timesteps,
+        "repeats": args.repeats,
+        "as_tier": args.as_tier,
+        "seed": args.seed,
+        "version": version,
+        "started": started,
+        "ended": utc_now(),
+        "kwargs": kwargs,
+        "runs": results,
+        "medians": medians,
+    }
     for algo, median in medians.items():
         line = f"{algo:16s} {median['seconds']:7.1f} s"
         for base in ("sac", "pebble"):
