@@ -80,6 +80,29 @@ def test_a_torn_last_line_is_dropped_and_cut_before_the_next_append(tmp_path):
     assert all(json.loads(line) for line in journal.path.read_text().splitlines())
 
 
+@pytest.mark.parametrize(
+    "line, reason",
+    [
+        ('{"a": 1}', "no session, label, shape, inputs"),
+        ("[1, 2]", "not an answer"),
+        ('{"session": 1, "label": 1.0, "shape": [2, 3, 2], "inputs": "AAAAAA=="}', "cannot reshape"),
+        ('{"session": 1, "label": 1.0, "shape": [1], "inputs": "not base64!"}', "base64|Non-base64|Invalid"),
+        ('{"session": 1, "label": "left", "shape": [1], "inputs": "AAAAAA=="}', "could not convert"),
+    ],
+)
+def test_a_line_that_is_not_an_answer_is_refused_naming_its_file_and_line(tmp_path, line, reason):
+    journal = PreferenceJournal(tmp_path / "preferences.jsonl")
+    journal.append([JournalEntry(1, np.ones((2, 3, 2), np.float32), 0.0)])
+    with open(journal.path, "a") as file:
+        file.write(line + "\n")
+    with pytest.raises(
+        ValueError, match=rf"preference_journal .*preferences.jsonl: line 2 is not a journal entry \(.*({reason})"
+    ):
+        journal.read()
+    with pytest.raises(ValueError, match=r"^journal .*preferences.jsonl: line 2 is not a journal entry"):
+        PreferenceJournal(journal.path, name="journal").read(strict=True)
+
+
 def test_a_save_that_fails_midway_leaves_the_previous_checkpoint(tiny_kwargs, tmp_path, monkeypatch):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(150)

@@ -143,7 +143,7 @@ def test_fit_from_journals_ranks_held_out_pairs_and_a_flipped_teacher_reads_belo
     assert preference_accuracy(reward, inputs, 1.0 - labels) <= 0.3
     with pytest.raises(ValueError, match=r"dynamics_consistency.*learn from the agent's stored transitions"):
         fit_reward([folder / "preferences.jsonl"], reward_kwargs=dict(dynamics_consistency=True))
-    with pytest.raises(ValueError, match=r"other.jsonl is about other pairs: its env id 'Pendulum-v1' \(this run: 'Mountain"):
+    with pytest.raises(ValueError, match=r"other.jsonl is about other pairs: its env id 'Pendulum-v1' \(this fit: 'Mountain"):
         (tmp_path / "other.jsonl").write_text((folder / "preferences.jsonl").read_text())
         fit_reward([tmp_path / "other.jsonl"], env="MountainCarContinuous-v0")
 

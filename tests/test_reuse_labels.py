@@ -1,13 +1,15 @@
 """Labels from earlier runs: a run starts from the answers of earlier journals, read and checked as the run reads its own."""
 
 import json
+import os
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 from sb3_pride import PEBBLE
-from sb3_pride.common.journal import JournalEntry, PreferenceJournal, read_prior_preferences
+from sb3_pride.common.journal import JournalEntry, PreferenceJournal, query_id
+from sb3_pride.common.priors import read_prior_preferences
 
 
 @pytest.fixture(scope="module")
@@ -143,3 +145,90 @@ def test_the_header_is_written_with_the_first_answers_and_a_torn_header_is_cut(t
     book.record([JournalEntry(1, np.zeros((2, 5, 4), dtype=np.float32), 1.0)])
     lines = path.read_text().splitlines()
     assert json.loads(lines[0]) == {"journal": {"env_id": "Pendulum-v1", "segment_length": 5}} and len(lines) == 2
+
+
+def test_a_session_whose_candidates_were_all_answered_before_draws_fresh_ones(earlier_journal, tiny_kwargs, tmp_path):
+    """The same seed draws the earlier run's first queries again: the session asks fresh ones, the budget in full."""
+    import warnings
+
+    settings = dict(tiny_kwargs, max_feedback=40, queries_per_session=20)  # sessions at steps 300 and 600
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal=tmp_path / "own.jsonl",
+                   prior_preferences=[earlier_journal], **settings)  # fmt: skip
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no budget warning, no short session
+        model.learn(700)
+    assert model.feedback_sessions == 2 and model.feedback_asked == 40
+    own = PreferenceJournal(tmp_path / "own.jsonl").read()
+    assert [entry.session for entry in own] == [1] * 20 + [2] * 20
+    earlier_ids = {entry.id for entry in PreferenceJournal(earlier_journal).read()}
+    assert not {entry.id for entry in own} & earlier_ids and len({entry.id for entry in own}) == 40
+
+
+def test_a_session_that_finds_too_few_pairs_never_asked_says_how_many_it_could_not_ask(tiny_kwargs):
+    """Episodes of one segment, queries from two finished ones: 4 distinct pairs exist, a session of 20 asks those 4."""
+    env = gym.make("Pendulum-v1", max_episode_steps=10)
+    # the third of the recent episodes is the running one, a step short of a segment when the session opens
+    settings = dict(tiny_kwargs, queries_per_session=20, max_feedback=20, query_kwargs=dict(max_query_episodes=3))
+    model = PEBBLE("MlpPolicy", env, seed=0, **settings)
+    with pytest.warns(UserWarning, match=r"feedback session 1 asks 4 of its 20 queries: .*16 .*not asked"):
+        model.learn(310)
+    assert model.feedback_asked == 4
+    assert len({query_id(pair) for pair in model.preferences.inputs}) == len(model.preferences)
+
+
+@pytest.mark.parametrize("content", ["", "HEADER"], ids=["empty", "header only"])
+def test_a_prior_journal_without_answers_is_refused(earlier_journal, tiny_kwargs, tmp_path, content):
+    prior = tmp_path / "prior.jsonl"
+    prior.write_text(earlier_journal.read_text().splitlines(keepends=True)[0] if content else "")
+    with pytest.raises(ValueError, match=r"prior_preferences .*prior.jsonl holds no answers"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=tmp_path / "own.jsonl", prior_preferences=[prior], **tiny_kwargs)
+    assert not (tmp_path / "own.jsonl").exists()
+
+
+def test_a_line_that_is_not_a_journal_entry_is_named_with_its_file_and_line(earlier_journal, tiny_kwargs, tmp_path):
+    for name, lines in (
+        ("foreign.jsonl", ['{"a": 1}']),
+        ("bad_inputs.jsonl", ['{"session": 1, "label": 1.0, "shape": [2, 10, 4], "inputs": "AAAA"}']),
+    ):
+        prior = tmp_path / name
+        prior.write_text(earlier_journal.read_text() + "\n".join(lines) + "\n")
+        with pytest.raises(ValueError, match=rf"prior_preferences .*{name}: line 62 is not a journal entry"):
+            PEBBLE("MlpPolicy", "Pendulum-v1", prior_preferences=[prior], **tiny_kwargs)
+    own = tmp_path / "own.jsonl"
+    own.write_text('{"a": 1}\n')
+    with pytest.raises(ValueError, match=r"preference_journal .*own.jsonl: line 1 is not a journal entry"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", preference_journal=own, **tiny_kwargs)
+
+
+@pytest.mark.filterwarnings("ignore:the budget cannot be asked")
+def test_a_saved_model_loads_from_any_folder_its_journal_found_beside_it(tiny_kwargs, tmp_path, monkeypatch):
+    project = tmp_path / "project"
+    project.mkdir()
+    monkeypatch.chdir(project)
+    model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal="run/pend.jsonl", **tiny_kwargs).learn(700)
+    model.save("run/model.zip")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    # run/pend.jsonl, relative to the folder the run was made in: found from the model file's folder up
+    loaded = PEBBLE.load(project / "run" / "model.zip", env=gym.make("Pendulum-v1"))
+    assert os.path.samefile(loaded.preference_journal, project / "run" / "pend.jsonl")
+    assert loaded.feedback.journal.included == 40
+    loaded.learn(300, reset_num_timesteps=False)  # the third session is journaled where the first two are
+    assert len(PreferenceJournal(project / "run" / "pend.jsonl").read()) == 60
+    assert not (elsewhere / "run").exists()
+    # a journal path relative to the model's own folder, and a journal moved beside its model
+    monkeypatch.chdir(project / "run")
+    relative = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, preference_journal="logs/pend.jsonl", **tiny_kwargs).learn(400)
+    relative.save("model2.zip")
+    monkeypatch.chdir(elsewhere)
+    assert os.path.samefile(PEBBLE.load(project / "run" / "model2.zip").preference_journal, project / "run/logs/pend.jsonl")
+    (project / "run" / "logs" / "pend.jsonl").rename(project / "run" / "pend2.jsonl")
+    relative.preference_journal = str(project / "run" / "logs" / "pend2.jsonl")  # an absolute path, since moved
+    relative.save(project / "run" / "model2.zip")
+    assert os.path.samefile(PEBBLE.load(project / "run" / "model2.zip").preference_journal, project / "run/pend2.jsonl")
+    # a journal that is gone is said to be missing; load(preference_journal=None) loads the model without it
+    (project / "run" / "pend.jsonl").unlink()
+    with pytest.raises(ValueError, match=r"preference_journal run/pend.jsonl is missing.*40 answers.*preference_journal="):
+        PEBBLE.load(project / "run" / "model.zip")
+    assert len(PEBBLE.load(project / "run" / "model.zip", preference_journal=None).preferences) == 40

@@ -4,17 +4,18 @@ Crash safety: an append-only journal of the teacher's answers, and files written
 A preference label costs a person's time; a run may be killed at any moment. ``PreferenceJournal`` appends every
 answer (the pair's reward-model inputs and μ, or a skip) to a JSON-lines file and flushes it to disk before the
 answer is used, so a run resumed from an older checkpoint gets it back instead of asking again.
-``atomic_write_path`` makes a checkpoint replace the previous one only once it is complete.
-``read_prior_preferences`` reads the answers of earlier runs' journals, for a new run to start from.
+``atomic_write_path`` makes a checkpoint replace the previous one only once it is complete. Earlier runs' journals
+are read for a new run to start from by ``sb3_pride.common.priors``.
 """
 
 import base64
+import binascii
 import contextlib
 import hashlib
 import json
 import os
-from collections.abc import Iterable, Iterator, Sequence
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -83,6 +84,24 @@ def merge_answers(entries: list[JournalEntry]) -> list[JournalEntry]:
     return merged
 
 
+def journal_entry(record: object, where: str) -> JournalEntry:
+    """One answer line of a journal, read back; anything else is refused, naming ``where`` it is."""
+    try:
+        if not isinstance(record, dict) or "journal" in record:
+            raise ValueError("not an answer")
+        missing = [key for key in ("session", "label", "shape", "inputs") if key not in record]
+        if missing:
+            raise ValueError(f"no {', '.join(missing)}")
+        inputs = np.frombuffer(base64.b64decode(record["inputs"], validate=True), dtype=np.float32)
+        inputs = inputs.reshape(record["shape"]).copy()
+        label = float("nan") if record["label"] is None else float(record["label"])
+        return JournalEntry(int(record["session"]), inputs, label, record.get("annotator"), record.get("time"))
+    except (TypeError, ValueError, binascii.Error) as error:
+        raise ValueError(
+            f"{where} is not a journal entry ({error}): each answer line holds session, label, shape and inputs"
+        ) from None
+
+
 class PreferenceJournal:
     """
     An append-only JSON-lines file of the teacher's answers. Its first line says what the answers are about:
@@ -94,10 +113,11 @@ class PreferenceJournal:
     to query ``"id"`` (by ``"annotator"``) when the line names them.
 
     :param path: the file (created with its folder on the first answer)
+    :param name: what its errors call it: the setting or argument the user gave it by
     """
 
-    def __init__(self, path: str | os.PathLike):
-        self.path = Path(path)
+    def __init__(self, path: str | os.PathLike, name: str = "preference_journal"):
+        self.path, self.name = Path(path), name
 
     def header(self) -> dict | None:
         """What the answers are about (the first line's ``"journal"``), None when the file has no such line."""
@@ -125,28 +145,24 @@ class PreferenceJournal:
         for number, line in enumerate(lines, start=1):
             if not line.strip():
                 continue
+            where = f"{self.name} {self.path}: line {number}"
             try:
                 record = json.loads(line)
             except json.JSONDecodeError:
                 if number == len(lines) and not strict:  # the torn last line of a killed writer (no newline yet)
                     break
                 torn = " (a last line cut in the middle of a write)" if number == len(lines) else ""
-                raise ValueError(f"preference_journal {self.path}: line {number} is not JSON{torn}") from None
+                raise ValueError(f"{where} is not JSON{torn}") from None
             if number == 1 and isinstance(record, dict) and "journal" in record:
                 continue  # the header
-            if not isinstance(record, dict) or "journal" in record:
-                raise ValueError(f"preference_journal {self.path}: line {number} is not an answer")
-            if record.get("undo"):
-                undone = undone_index(entries, record["session"], record.get("id"), record.get("annotator"))
+            if isinstance(record, dict) and record.get("undo"):
+                session = record.get("session")
+                undone = undone_index(entries, session, record.get("id"), record.get("annotator")) if session else None
                 if undone is None:
-                    raise ValueError(f"preference_journal {self.path}: line {number} undoes no answer of its session")
+                    raise ValueError(f"{where} undoes no answer of its session")
                 del entries[undone]
                 continue
-            inputs = np.frombuffer(base64.b64decode(record["inputs"]), dtype=np.float32).reshape(record["shape"])
-            label = float("nan") if record["label"] is None else float(record["label"])
-            entries.append(
-                JournalEntry(int(record["session"]), inputs.copy(), label, record.get("annotator"), record.get("time"))
-            )
+            entries.append(journal_entry(record, where))
         return entries
 
     def _cut_torn_line(self) -> None:
@@ -199,6 +215,23 @@ class PreferenceJournal:
             file.writelines(json.dumps(record) + "\n" for record in records)
             file.flush()
             os.fsync(file.fileno())
+
+
+def find_journal(journal: str, model_path: str | os.PathLike) -> str:
+    """
+    Where the preference journal of a model saved at ``model_path`` is now: ``journal`` as the run gave it, when it
+    names a file from the working folder (or is absolute and there); else, for a relative path, the first file it
+    names from the model file's folder or one of that folder's parents (the folder the run was made in); else a file
+    of its name beside the model file (a run's folder moved whole). ``journal`` itself when none is found.
+    """
+    if os.path.isfile(journal):
+        return journal
+    folder = Path(os.path.abspath(model_path)).parent
+    bases = [] if os.path.isabs(journal) else [folder, *folder.parents]
+    for candidate in [*(base / journal for base in bases), folder / Path(journal).name]:
+        if candidate.is_file():
+            return str(candidate)
+    return journal
 
 
 @contextlib.contextmanager
@@ -282,6 +315,11 @@ class JournalBook:
         if self.path is None:
             return []
         if self._history is None:
+            if self.included > 0 and not os.path.exists(self.path):
+                raise ValueError(
+                    f"preference_journal {self.path} is missing: this model includes {self.included} answers of it. "
+                    "Give load() where it is now (preference_journal=...), or preference_journal=None to go on without one"
+                )
             entries = PreferenceJournal(self.path).read()
             for entry in entries:
                 if entry.inputs.shape != self.entry_shape:
@@ -332,29 +370,6 @@ class JournalBook:
         del history[undone]
 
 
-#: what a journal's header says about its pairs, and the setting each must match
-HEADER_FIELDS = {
-    "env_id": "env id",
-    "observation_shape": "observation shape",
-    "action_shape": "action shape",
-    "segment_length": "segment_length",
-}
-
-
-@dataclass
-class PriorPreferences:
-    """
-    The answers of earlier runs' journals, for a run to start from: their pairs' inputs, labels μ (skips left out,
-    several annotators' answers to one query merged) and query ids, and where they came from.
-    """
-
-    inputs: np.ndarray
-    labels: np.ndarray
-    ids: list[str] = field(default_factory=list)
-    #: one dict per journal: its path, SHA-1 and number of labels
-    sources: list[dict] = field(default_factory=list)
-
-
 def journal_header(env_id: str | None, observation_shape: Any, action_shape: Any, segment_length: int) -> dict:
     """A run's journal header (``PreferenceJournal``): what its pairs are about."""
     return {
@@ -363,62 +378,3 @@ def journal_header(env_id: str | None, observation_shape: Any, action_shape: Any
         "action_shape": list(action_shape),
         "segment_length": segment_length,
     }
-
-
-def read_prior_preferences(
-    paths: Sequence[str | os.PathLike], header: dict, entry_shape: tuple[int, ...], own_journal: str | None = None
-) -> PriorPreferences:
-    """
-    Read earlier runs' journals whole, as each run read its own (skips and undos applied), and refuse any that is not
-    about this run's pairs: the run's own journal, a missing file, a last line cut in the middle of a write, a header
-    whose env id, observation or action shape or segment length differs from ``header``'s, or pairs of another shape
-    than ``entry_shape`` (a journal without a header is checked on its pairs' shape only).
-
-    :param paths: the journals, e.g. ``["runs/a/preferences.jsonl"]``
-    :param header: this run's journal header (``PreferenceJournal``)
-    :param entry_shape: (2, segment_length, obs_dim + action_dim)
-    :param own_journal: the run's own journal (its answers are taken back as the run's, not as priors)
-    """
-    if isinstance(paths, (str, os.PathLike)) or not all(isinstance(path, (str, os.PathLike)) for path in paths):
-        raise ValueError(f"prior_preferences must be a list of journal paths, got {paths!r}")
-    entries: list[JournalEntry] = []
-    sources = []
-    for path in paths:
-        journal = PreferenceJournal(path)
-        if own_journal is not None and os.path.realpath(path) == os.path.realpath(own_journal):
-            raise ValueError(f"prior_preferences: {os.fspath(path)} is this run's own preference_journal")
-        if not journal.path.is_file():
-            raise ValueError(f"prior_preferences: {os.fspath(path)} is not a file")
-        theirs = journal.header() or {}
-        different = [
-            f"{name} {theirs[key]!r} (this run: {header[key]!r})"
-            for key, name in HEADER_FIELDS.items()
-            if theirs.get(key) is not None and header.get(key) is not None and _plain(theirs[key]) != _plain(header[key])
-        ]
-        if different:
-            raise ValueError(f"prior_preferences: {os.fspath(path)} is about other pairs: its " + ", its ".join(different))
-        try:
-            own = journal.read(strict=True)
-        except ValueError as error:
-            raise ValueError(str(error).replace("preference_journal", "prior_preferences:", 1)) from None
-        for entry in own:
-            if entry.inputs.shape != tuple(entry_shape):
-                raise ValueError(
-                    f"prior_preferences: {os.fspath(path)} holds pairs of shape {entry.inputs.shape}, this run's are "
-                    f"{tuple(entry_shape)} (2, segment_length, obs_dim + action_dim)"
-                )
-        entries += own
-        digest = hashlib.sha1(journal.path.read_bytes()).hexdigest()
-        labelled = {entry.id for entry in merge_answers(own) if not np.isnan(entry.label)}
-        sources.append({"path": os.fspath(path), "sha1": digest, "labels": len(labelled)})
-    # a query answered in several journals (or one journal given twice) is one preference: its answers' mean μ
-    merged = merge_answers(entries)
-    answered = [entry for entry in merged if not np.isnan(entry.label)]
-    inputs = np.stack([entry.inputs for entry in answered]).astype(np.float32) if answered else np.zeros((0, *entry_shape))
-    labels = np.array([entry.label for entry in answered], dtype=np.float32)
-    return PriorPreferences(inputs.astype(np.float32), labels, [entry.id for entry in merged], sources)
-
-
-def _plain(value: object) -> object:
-    """A header value as JSON reads it back (tuples become lists)."""
-    return json.loads(json.dumps(value))

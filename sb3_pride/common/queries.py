@@ -13,6 +13,9 @@ from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.common.journal import query_id
 from sb3_pride.common.utils import check_choice, check_positive_ints, check_real
 
+#: how many times, at most, a session draws again when its candidates were asked before (``QuerySampler.fresh_pairs``)
+REDRAWS = 10
+
 QUERY_SELECTIONS = ("uniform", "disagreement", "entropy", "kcenter", "kcenter_disagreement", "kcenter_entropy")
 
 
@@ -51,6 +54,16 @@ class SegmentPairs:
     def inputs(self) -> np.ndarray:
         """The reward model's inputs: (n, 2, k, obs_dim + action_dim) float32 [s, a]."""
         return np.concatenate([self.observations, self.actions], axis=-1).astype(np.float32)
+
+
+def concatenate_pairs(parts: list[SegmentPairs]) -> SegmentPairs:
+    """The pairs of ``parts``, one after the other (drawn from one buffer: the first's return scale)."""
+    states = [part.render_states for part in parts if part.render_states is not None]
+    observations, actions, true_rewards = (
+        np.concatenate([getattr(part, name) for part in parts]) for name in ("observations", "actions", "true_rewards")
+    )
+    render_states = np.concatenate(states) if len(states) == len(parts) else None
+    return SegmentPairs(observations, actions, true_rewards, parts[0].return_scale, render_states)
 
 
 def chronological_rows(buffer: PreferenceReplayBuffer) -> np.ndarray:
@@ -310,20 +323,19 @@ class QuerySampler:
         :param labeled_inputs: the inputs of the pairs labelled so far (the k-center selections' covered points)
         :param first: the first feedback session, always uniform
         :param selection: the selection of this session (None: the sampler's ``selection``)
-        :return: the chosen pairs (fewer when ``asked_before`` held candidates), or None when no segment fits in the
-            stored episodes yet (a warning, once, when every finished episode is shorter than a segment)
+        :return: the chosen pairs, all different (fewer only where the recent episodes hold no more never asked), or
+            None when no segment fits in the stored episodes yet (a warning, once, when every finished episode is
+            shorter than a segment)
         """
         if n_queries == 0:
             shape = (0, 2, self.segment_length)
             return SegmentPairs(np.zeros((*shape, *buffer.obs_shape)), np.zeros((*shape, buffer.action_dim)), np.zeros(shape))
         selection = "uniform" if first else (selection or self.selection)
         n_candidates = n_queries if selection == "uniform" else n_queries * self.candidates_multiplier
-        candidates = sample_segment_pairs(buffer, n_candidates, self.segment_length, self.max_query_episodes, rng)
+        candidates = self.fresh_pairs(buffer, n_candidates, n_queries, rng, asked_before)
         if candidates is None:
             self.warn_short_episodes(buffer)
             return None
-        if asked_before:
-            candidates = candidates[np.array([query_id(pair) not in asked_before for pair in candidates.inputs])]
         if selection != "uniform" and len(candidates) > 0:
             n_obs = candidates.observations.shape[-1]
             chosen = select_queries(
@@ -335,6 +347,28 @@ class QuerySampler:
             )
             candidates = candidates[chosen]
         return candidates
+
+    def fresh_pairs(
+        self, buffer: PreferenceReplayBuffer, n_pairs: int, n_needed: int, rng: np.random.Generator, asked_before: set[str]
+    ) -> SegmentPairs | None:
+        """
+        Up to ``n_pairs`` random pairs, all different, none in ``asked_before``, drawn again (``REDRAWS`` times at most)
+        while fewer than ``n_needed`` are left: a session whose draw repeats earlier answers (an earlier run's, same
+        seed) still asks in full. None when no segment fits in the stored episodes yet.
+        """
+        parts: list[SegmentPairs] = []
+        seen = set(asked_before)
+        for _ in range(1 + REDRAWS):
+            drawn = sample_segment_pairs(buffer, n_pairs, self.segment_length, self.max_query_episodes, rng)
+            if drawn is None:
+                return None
+            last = {query_id(pair): index for index, pair in enumerate(drawn.inputs)}  # one of each pair drawn twice
+            fresh = sorted(index for identity, index in last.items() if identity not in seen)
+            seen.update(last)
+            parts.append(drawn[np.array(fresh, dtype=np.int64)])
+            if sum(len(part) for part in parts) >= n_needed:
+                break
+        return concatenate_pairs(parts)[:n_pairs]
 
     def unlabeled_pairs(self, buffer: PreferenceReplayBuffer, n_pairs: int, rng: np.random.Generator) -> np.ndarray | None:
         """The inputs of ``n_pairs`` pairs drawn as queries are, for nobody to label (SURF's unlabelled pairs)."""

@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 from stable_baselines3.common.logger import Logger
 
-from sb3_pride.common.journal import JournalBook, JournalEntry, merge_answers, read_prior_preferences
+from sb3_pride.common.journal import JournalBook, JournalEntry, merge_answers
+from sb3_pride.common.priors import read_prior_preferences
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.utils import caller_stacklevel
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, ScriptedTeacher, Teacher, make_teacher
@@ -167,6 +168,18 @@ def check_plan(plan: list[tuple[int, int]], remaining: int, schedule: "str | Seq
         raise ValueError(f"feedback_schedule={schedule!r}: {message}")
 
 
+def warn_short_session(session: int, n_queries: int, n_asked: int) -> None:
+    """Say so when a feedback session finds fewer pairs never asked before than it was to ask."""
+    if n_asked < n_queries:
+        warnings.warn(
+            f"feedback session {session} asks {n_asked} of its {n_queries} queries: the recent episodes hold no other "
+            f"pairs never asked before (this run's journal, prior_preferences): {n_queries - n_asked} queries of "
+            "max_feedback are not asked in it (later sessions of a long enough run ask them; a larger "
+            "query_kwargs max_query_episodes draws from more episodes)",
+            stacklevel=caller_stacklevel(),
+        )
+
+
 class FeedbackLoop:
     """
     The teacher's side of PEBBLE's feedback sessions. ``publish()`` gives a session's queries to the teacher: answers
@@ -291,6 +304,7 @@ class FeedbackLoop:
         candidates = choose(n_queries - len(journaled), self.journal.asked_ids())
         if candidates is None:
             return False
+        warn_short_session(context.session, n_queries, len(journaled) + len(candidates))
         answers: Future[np.ndarray] = Future()
         if len(candidates) == 0:
             answers.set_result(np.zeros(0))

@@ -10,7 +10,6 @@ from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.callbacks import BaseCallback, ConvertCallback
 from stable_baselines3.common.noise import ActionNoise
 from stable_baselines3.common.preprocessing import get_action_dim, get_flattened_obs_dim
-from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.type_aliases import GymEnv, MaybeCallback, Schedule
 from stable_baselines3.sac.policies import SACPolicy
 
@@ -26,10 +25,10 @@ from sb3_pride.common.teachers import InteractiveTeacher, Teacher
 from sb3_pride.common.utils import seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
-from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS, STRUCTURED_SETTINGS, migrate_parameters, migrate_saved_model
+from sb3_pride.pebble.migration import STRUCTURED_SETTINGS, migrate_parameters, migrate_saved_model
 from sb3_pride.pebble.settings import (
     check_feedback_settings,
-    loaded_settings,
+    load_kwargs,
     check_sac_arguments,
     preference_settings,
 )
@@ -217,12 +216,11 @@ class PEBBLE(AtomicSaves, SAC):
     def load(cls, path, env: GymEnv | None = None, device: th.device | str = "auto", custom_objects=None,
              print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
         """
-        SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``, and a
-        structured setting given (``reward_kwargs``, ...) changes the saved one entry by entry (``loaded_settings``).
+        SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``, a structured
+        setting given (``reward_kwargs``, ...) changes the saved one entry by entry, and the journal is found from
+        wherever the model is loaded (``load_kwargs``); ``preference_journal=None`` loads it without its journal.
         """
-        if set(kwargs) & {*STRUCTURED_SETTINGS, *RENAMED_PEBBLE_SETTINGS}:
-            saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
-            kwargs = loaded_settings(path, saved or {}, kwargs)
+        kwargs = load_kwargs(path, kwargs, device, custom_objects)
         model = super().load(path, env, device, custom_objects, print_system_info, force_reset, **kwargs)
         if env is not None and model.env is not None:
             check_env(model.env, model.segment_length, model.verbose)

@@ -1,11 +1,16 @@
 """PEBBLE's settings checked before anything is made, each error naming the setting and what it expects."""
 
+import json
+import os
+import zipfile
 from typing import Any
 
 import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
+from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_pride.common.consistency import DynamicsConsistency
+from sb3_pride.common.journal import find_journal
 from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import RewardLearner
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option
@@ -65,6 +70,39 @@ def check_feedback_settings(
     check_non_negative_ints(unsupervised_steps=unsupervised_steps)
     if not isinstance(asynchronous_feedback, (bool, np.bool_)):
         raise ValueError(f"asynchronous_feedback must be True or False, got {asynchronous_feedback!r}")
+
+
+def saved_journal(path: Any) -> str | None:
+    """
+    The ``preference_journal`` a model file holds, read from its settings alone (None when it has none, or when the
+    file cannot be read: SB3's ``load`` then says why). SB3 opens ``path``, else ``path`` with ".zip" added.
+    """
+    if not isinstance(path, (str, os.PathLike)):
+        return None
+    for candidate in (os.fspath(path), f"{os.fspath(path)}.zip"):
+        if os.path.isfile(candidate):
+            try:
+                with zipfile.ZipFile(candidate) as archive:
+                    journal = json.loads(archive.read("data")).get("preference_journal")
+            except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+                return None
+            return journal if isinstance(journal, str) else None
+    return None
+
+
+def load_kwargs(path: Any, kwargs: dict[str, Any], device: Any, custom_objects: dict[str, Any] | None) -> dict[str, Any]:
+    """
+    ``load()``'s keyword arguments: the run's ``preference_journal`` found wherever the model is loaded from
+    (``find_journal``: from the working folder, else from the model file's folder up, else beside it) unless given,
+    and the structured settings given merged into the saved ones (``loaded_settings``).
+    """
+    journal = None if "preference_journal" in kwargs else saved_journal(path)
+    if journal is not None:
+        kwargs = {**kwargs, "preference_journal": find_journal(journal, path)}
+    if set(kwargs) & {*STRUCTURED_SETTINGS, *RENAMED_PEBBLE_SETTINGS}:
+        saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
+        kwargs = loaded_settings(path, saved or {}, kwargs)
+    return kwargs
 
 
 def loaded_settings(path: Any, saved: dict[str, Any], kwargs: dict[str, Any]) -> dict[str, Any]:

@@ -12,8 +12,9 @@ import numpy as np
 import torch as th
 from gymnasium import spaces
 
-from sb3_pride.common.journal import PreferenceJournal, journal_header, read_prior_preferences
+from sb3_pride.common.journal import PreferenceJournal, journal_header
 from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.common.priors import read_prior_preferences
 from sb3_pride.common.reward_model import PreferenceDataset
 
 
@@ -78,8 +79,9 @@ def fit_reward(
 ) -> tuple[LearnedReward, FitReport]:
     """
     Fit PEBBLE's reward model (Lee, Smith & Abbeel, ICML 2021, Eqs. 1–2) on the answers of ``journals`` alone: read
-    and checked as ``PEBBLE(prior_preferences=...)`` reads them (skips and undos applied, a journal of other pairs or
-    a cut last line refused), a random ``held_out`` share kept apart to measure the fit.
+    and checked as ``PEBBLE(prior_preferences=...)`` reads them (skips and undos applied; a journal of other pairs, one
+    without answers, or one with a line that is not an answer refused, the error naming the file), a random
+    ``held_out`` share kept apart to measure the fit.
 
     :param journals: preference journals (``PEBBLE(preference_journal=...)``, a ``WebTeacher`` team's)
     :param env: the env (an id or a gymnasium env) whose spaces r̂ reads; None: the one the journals' headers name
@@ -103,18 +105,18 @@ def fit_reward(
     observation_space, action_space, env_id = journal_spaces(paths, env)
     segment_length = 0
     for path in paths:  # from the first header that says, else the first answer's pair
-        journal = PreferenceJournal(path)
+        journal = PreferenceJournal(path, "journal")
         segment_length = (journal.header() or {}).get("segment_length") or 0
         if not segment_length:
             entries = journal.read(strict=True)
-            segment_length = entries[0].inputs.shape[1] if entries else 0
+            if not entries:
+                raise ValueError(f"journal {path} holds no answers (an empty journal, or its header alone)")
+            segment_length = entries[0].inputs.shape[1]
         if segment_length:
             break
-    if not segment_length:
-        raise ValueError(f"journals {paths} hold no answers")
     header = journal_header(env_id, observation_space.shape, action_space.shape, segment_length)
     input_dim = int(np.prod(observation_space.shape)) + int(np.prod(action_space.shape))
-    priors = read_prior_preferences(paths, header, (2, segment_length, input_dim))
+    priors = read_prior_preferences(paths, header, (2, segment_length, input_dim), name="journal", reader="this fit")
     if len(priors.labels) == 0:
         raise ValueError(f"journals {paths} hold no labelled answers")
     rng = np.random.default_rng(seed)

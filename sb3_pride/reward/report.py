@@ -124,11 +124,15 @@ def reward_report(
 ) -> list[Path]:
     """
     Write the figures of what r̂ learned into the folder ``out``: ``episode_<n>.png`` per episode (r̂ beside r along
-    it) and, given the run's ``history``, ``sessions.png`` (corr(r̂, r) after each feedback session).
+    it) and, given the run's ``history``, ``sessions.png`` (corr(r̂, r) after each feedback session). An ``out`` that
+    is a file, or an env whose spaces r̂ cannot read, is refused before the folder is made.
 
     :return: the figures written
     """
     folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"out {folder} is a file: give a folder for the figures")
+    reward.check_spaces(env.observation_space, env.action_space, f"env {env}")  # before anything is made
     folder.mkdir(parents=True, exist_ok=True)
     figures = [
         plot_episode(rewards, folder / f"episode_{number}.png", f"episode {number}: ")
