@@ -269,7 +269,8 @@ def screen_one(
     from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
     from sb3_pride.common.queries import sample_segment_pairs
     from sb3_pride.common.queries import pair_features, select_queries
-    from sb3_pride.common.reward_model import PreferenceDataset, PseudoLabels, RewardEnsemble, RobustLabels
+    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
+    from sb3_pride.common.reward_options import PseudoLabels, RobustLabels
     from sb3_pride.common.teachers import InteractiveTeacher, make_teacher
 
     config = dict(config)
@@ -338,21 +339,15 @@ def screen_one(
         if transitions is not None:  # REED: the encoder first, one pass per feedback session so far
             for _ in range(passes):
                 consistency_models[id(model)].train_epochs(*transitions, train_rng)
-        unlabeled = None
-        if pseudo is not None:
+        options: list[Any] = [selections[id(model)]] if id(model) in selections else []
+        if pseudo is not None:  # SURF: its unlabelled pairs drawn from the training episodes, as PEBBLE draws queries
             n = min(pseudo.unlabeled_per_label * len(dataset), pseudo.max_unlabeled)
             drawn = sample_segment_pairs(train_buffer, n, k, len(train), unlabeled_rng)
             assert drawn is not None
-            unlabeled = drawn.inputs
+            pseudo.unlabeled = th.as_tensor(drawn.inputs) if len(drawn.inputs) > 0 else None
+            options.append(pseudo)
         _, accuracy, epochs = model.train_epochs(
-            dataset,
-            max_epochs,
-            reward_kwargs["reward_batch_size"],
-            rng=train_rng,
-            robust_labels=selections.get(id(model)),
-            unlabeled=unlabeled,
-            pseudo_labels=pseudo,
-            **config,
+            dataset, max_epochs, reward_kwargs["reward_batch_size"], rng=train_rng, options=options, **config
         )
         return accuracy, epochs
 

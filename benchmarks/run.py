@@ -219,8 +219,9 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
             p.name: p.default for p in parameters if p.default is not p.empty and p.name != "selection"
         }
         defaults["pretraining_kwargs"] = dict(PRETRAINING_DEFAULTS)
-        options = algorithm_class(algo).option_settings  # type: ignore[attr-defined]
-        defaults["option_settings"] = {name: dataclasses.asdict(cls()) for name, cls in options.items()}
+        from sb3_pride.common.reward_options import REWARD_OPTIONS
+
+        defaults["option_settings"] = {name: dataclasses.asdict(cls()) for name, cls in REWARD_OPTIONS.items()}
     return defaults
 
 

@@ -10,12 +10,11 @@ from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.reward_model import (
     PreferenceDataset,
     RewardEnsemble,
-    PseudoLabels,
-    RobustLabels,
     check_temporal_crop,
     crop_pairs,
     preference_loss,
 )
+from sb3_pride.common.reward_options import PseudoLabels, RobustLabels
 from sb3_pride.common.utils import merge_kwargs
 
 
@@ -201,9 +200,9 @@ def test_robust_labels_leave_out_the_flipped_labels_and_learn_a_better_reward():
     for robust in (False, True):
         th.manual_seed(0)
         model = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu")
-        selection = RobustLabels() if robust else None
-        model.train_epochs(dataset, max_epochs=60, batch_size=64, target_accuracy=1.0, rng=np.random.default_rng(0),
-                           robust_labels=selection)  # fmt: skip
+        selection = RobustLabels()
+        options = [selection] if robust else []
+        model.train_epochs(dataset, 60, 64, target_accuracy=1.0, rng=np.random.default_rng(0), options=options)
         scores[robust] = held_out_rank_correlation(model)
         if robust:
             inputs, labels = th.as_tensor(dataset.inputs), th.as_tensor(dataset.labels)
@@ -214,8 +213,7 @@ def test_robust_labels_leave_out_the_flipped_labels_and_learn_a_better_reward():
     clean, _ = noisy_preferences(300, eps_mistake=0.0, seed=1)
     th.manual_seed(0)
     model, selection = RewardEnsemble(4, 2, n_members=3, net_arch=(64, 64), learning_rate=1e-3, device="cpu"), RobustLabels()
-    model.train_epochs(clean, max_epochs=60, batch_size=64, target_accuracy=1.0, rng=np.random.default_rng(0),
-                       robust_labels=selection)  # fmt: skip
+    model.train_epochs(clean, 60, 64, target_accuracy=1.0, rng=np.random.default_rng(0), options=[selection])
     assert selection.trusted >= 0.85 * len(clean) and selection.flipped <= 0.02 * len(clean)
 
 

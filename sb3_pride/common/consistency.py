@@ -5,18 +5,27 @@ Self-supervised pre-training of the reward model's encoder on the agent's transi
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 import torch as th
 from torch.nn import functional as F
 
+from sb3_pride.common.queries import stored_transitions
 from sb3_pride.common.reward_model import EnsembleMLP, RewardEnsemble
+from sb3_pride.common.reward_options import RewardOption
+
+if TYPE_CHECKING:
+    from sb3_pride.common.buffers import PreferenceReplayBuffer
+    from sb3_pride.common.queries import QuerySampler
+    from sb3_pride.common.reward_learner import RewardLearner
+    from sb3_pride.common.reward_model import PreferenceDataset
 
 CONSISTENCY_OPTIMIZERS = ("adam", "sgd")
 
 
 @dataclass
-class DynamicsConsistency:
+class DynamicsConsistency(RewardOption):
     """
     REED's self-future consistency (Metcalf et al., CoRL 2023, §4): before each feedback session's reward learning,
     the reward model's encoder is trained on the agent's transitions (s, a, s') to predict the representation of the
@@ -68,6 +77,28 @@ class DynamicsConsistency:
         if self.optimizer not in CONSISTENCY_OPTIMIZERS:
             expected = CONSISTENCY_OPTIMIZERS
             raise ValueError(f"dynamics_consistency: optimizer must be one of {expected}, got {self.optimizer!r}")
+
+    needs_transitions: ClassVar[bool] = True
+
+    def setup(self, learner: "RewardLearner") -> None:
+        """REED's heads on the learner's ensemble (``ConsistencyModel``), saved with the model as ``consistency``."""
+        learner.consistency = ConsistencyModel(learner.ensemble, learner.obs_dim, self)
+
+    def prepare(
+        self,
+        learner: "RewardLearner",
+        preferences: "PreferenceDataset",
+        buffer: "PreferenceReplayBuffer | None",
+        queries: "QuerySampler | None",
+        rng: np.random.Generator,
+    ) -> None:
+        """``epochs`` passes over the stored transitions (at most ``max_transitions``) before the labels are learned."""
+        assert buffer is not None and learner.consistency is not None  # needs_transitions; made by setup
+        transitions = stored_transitions(buffer, rng, self.max_transitions)
+        self.loss = learner.consistency.train_epochs(*transitions, rng)
+
+    def finish(self) -> dict[str, Any]:
+        return {"consistency_loss": getattr(self, "loss", None)}
 
 
 class ConsistencyModel(th.nn.Module):

@@ -4,7 +4,7 @@ the reward-learning options from the literature. One object, given to ``PEBBLE``
 """
 
 import inspect
-from dataclasses import dataclass
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -13,38 +13,31 @@ from stable_baselines3.common.type_aliases import ReplayBufferSamples
 from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
-from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
-from sb3_pride.common.queries import QuerySampler, stored_transitions
-from sb3_pride.common.reward_model import (
+from sb3_pride.common.entropy import StateEntropyReward
+from sb3_pride.common.queries import QuerySampler
+from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble, check_temporal_crop
+from sb3_pride.common.reward_options import (
+    REWARD_OPTIONS,
     ExplorationBonus,
-    PreferenceDataset,
     PseudoLabels,
-    RewardEnsemble,
+    RewardOption,
     RobustLabels,
-    check_temporal_crop,
+    register_reward_option,
 )
 from sb3_pride.common.utils import check_positive_ints, check_real, make_option
 
-#: the options given as False (off), True (the published settings) or a dict, and the class of their settings
-OPTION_SETTINGS: dict[str, type] = {
-    "robust_labels": RobustLabels,
-    "pseudo_labels": PseudoLabels,
-    "dynamics_consistency": DynamicsConsistency,
-    "exploration_bonus": ExplorationBonus,
-}
 
-
-@dataclass
-class RewardLearningReport:
-    """What one feedback session's reward learning did (logged under ``reward_model/``)."""
+class RewardLearningReport(SimpleNamespace):
+    """
+    What one feedback session's reward learning did, logged under ``reward_model/``: ``loss``, ``accuracy`` and
+    ``epochs``, and what each option on reports (``RewardOption.finish``: e.g. ``consistency_loss``,
+    ``trusted_labels``, ``flipped_labels``).
+    """
 
     loss: float
     accuracy: float
     epochs: int
-    consistency_loss: float | None = None
-    trusted_labels: int | None = None
-    flipped_labels: int | None = None
 
 
 class RewardLearner:
@@ -67,18 +60,19 @@ class RewardLearner:
     :param temporal_crop: SURF's temporal cropping (Park et al., ICLR 2022): each pair cropped to one random length in
         ``(min_length, max_length)`` at every minibatch, with its own start in each segment; ``max_length <=
         segment_length``: (35, 45) at segment 50 is QPA's S−15..S−5. None: whole segments
-    :param robust_labels: RIME's robust reward learning for noisy teachers (Cheng et al., ICML 2024): each epoch
-        trains on the labels the ensemble finds plausible and flips those it is confident are wrong
-        (``RobustLabels``). True: RIME's settings; a dict: ``RobustLabels``' settings. False: every label as given
-    :param pseudo_labels: SURF's semi-supervised reward learning: unlabelled pairs from the replay buffer beside each
-        labelled minibatch, each member learning from its own confident pseudo-labels (``PseudoLabels``). True:
-        SURF's walker-walk settings; a dict: ``PseudoLabels``' settings. False: labels only
-    :param dynamics_consistency: REED's self-supervised pre-training of the members' encoder (Metcalf et al., CoRL
-        2023) on the stored transitions before each session's reward learning (``DynamicsConsistency``). True: REED's
-        settings; a dict: ``DynamicsConsistency``' settings. False: labels only
-    :param exploration_bonus: RUNE's exploration bonus (Liang et al., ICLR 2022): SAC learns from r̂ + β_t · σ, σ the
-        members' disagreement (``ExplorationBonus``). True: RUNE's settings; a dict: its settings. False: r̂ alone.
-        Needs ``ensemble_size >= 2``
+    Options (``reward_kwargs[name]``: ``False``, the default, off; ``True``, the published settings; a dict of the
+    option's settings), each a ``RewardOption`` registered by name (``register_reward_option``: a user's own plugs in
+    the same way), called in the order they were registered:
+
+    - ``dynamics_consistency``: REED's self-supervised pre-training of the members' encoder (Metcalf et al., CoRL
+      2023) on the stored transitions before each session's reward learning (``DynamicsConsistency``);
+    - ``pseudo_labels``: SURF's semi-supervised reward learning: unlabelled pairs from the replay buffer beside each
+      labelled minibatch, each member learning from its own confident pseudo-labels (``PseudoLabels``);
+    - ``robust_labels``: RIME's robust reward learning for noisy teachers (Cheng et al., ICML 2024): each epoch trains
+      on the labels the ensemble finds plausible and flips those it is confident are wrong (``RobustLabels``);
+    - ``exploration_bonus``: RUNE's exploration bonus (Liang et al., ICLR 2022): SAC learns from r̂ + β_t · σ, σ the
+      members' disagreement (``ExplorationBonus``); needs ``ensemble_size >= 2``.
+
     :param device: where the networks live
     """
 
@@ -94,34 +88,62 @@ class RewardLearner:
         epochs: int = 50,
         early_stop: float | None = 0.97,
         temporal_crop: tuple[int, int] | None = None,
-        robust_labels: bool | dict[str, Any] = False,
-        pseudo_labels: bool | dict[str, Any] = False,
-        dynamics_consistency: bool | dict[str, Any] = False,
-        exploration_bonus: bool | dict[str, Any] = False,
         device: th.device | str = "auto",
+        **options: bool | dict[str, Any],
     ):
-        self.check_kwargs({name: value for name, value in locals().items() if name in self.settings()}, segment_length)
+        self.check_kwargs(
+            {name: value for name, value in locals().items() if name in self.own_settings()} | options, segment_length
+        )
+        self.obs_dim = obs_dim
         self.batch_size, self.epochs, self.early_stop = batch_size, epochs, early_stop
         self.temporal_crop = check_temporal_crop(temporal_crop, segment_length)
-        #: RIME's running selection of trusted labels (None: every label as given), saved with the model
-        self.label_selection: RobustLabels | None = make_option("robust_labels", robust_labels, RobustLabels)
-        self.pseudo_labels: PseudoLabels | None = make_option("pseudo_labels", pseudo_labels, PseudoLabels)
-        self.exploration_bonus: ExplorationBonus | None = make_option("exploration_bonus", exploration_bonus, ExplorationBonus)
-        consistency = make_option("dynamics_consistency", dynamics_consistency, DynamicsConsistency)
         #: r̂, the ensemble
         self.ensemble = RewardEnsemble(
             obs_dim, action_dim, n_members=ensemble_size, net_arch=tuple(net_arch), learning_rate=learning_rate, device=device
         )
-        #: REED's consistency heads on the members' encoder (None: off)
-        self.consistency = None if consistency is None else ConsistencyModel(self.ensemble, obs_dim, consistency)
+        #: REED's consistency heads on the members' encoder (None: off; made by ``DynamicsConsistency.setup``)
+        self.consistency: ConsistencyModel | None = None
+        #: the options on, by name, in the order they were registered; saved with the model (RIME's running values)
+        self.options: dict[str, RewardOption] = {}
+        for name, option_class in REWARD_OPTIONS.items():
+            option = make_option(name, options.get(name, False), option_class)
+            if option is not None:
+                self.options[name] = option
+                option.setup(self)
         #: one dict per reward update (``record``): session, step, labels, accuracy, corr(r̂, r); saved with the model
         self.history: list[dict[str, float]] = []
 
     @classmethod
-    def settings(cls) -> dict[str, Any]:
-        """The settings ``reward_kwargs`` may give, with their defaults."""
+    def own_settings(cls) -> dict[str, Any]:
+        """The learner's own settings (the ensemble's and its training's), with their defaults."""
         parameters = inspect.signature(cls.__init__).parameters
-        return {name: p.default for name, p in parameters.items() if p.default is not p.empty and name != "device"}
+        return {
+            name: p.default
+            for name, p in parameters.items()
+            if p.default is not p.empty and p.kind != p.VAR_KEYWORD and name != "device"
+        }
+
+    @classmethod
+    def settings(cls) -> dict[str, Any]:
+        """The settings ``reward_kwargs`` may give, with their defaults: the learner's own, then every option (off)."""
+        return {**cls.own_settings(), **dict.fromkeys(REWARD_OPTIONS, False)}
+
+    @property
+    def label_selection(self) -> RobustLabels | None:
+        """RIME's running selection of trusted labels (None: every label as given)."""
+        return self.options.get("robust_labels")  # type: ignore[return-value]
+
+    @label_selection.setter
+    def label_selection(self, selection: RobustLabels) -> None:
+        self.options["robust_labels"] = selection
+
+    @property
+    def pseudo_labels(self) -> PseudoLabels | None:
+        return self.options.get("pseudo_labels")  # type: ignore[return-value]
+
+    @property
+    def exploration_bonus(self) -> ExplorationBonus | None:
+        return self.options.get("exploration_bonus")  # type: ignore[return-value]
 
     @classmethod
     def check_kwargs(cls, reward_kwargs: Any, segment_length: int) -> None:
@@ -142,8 +164,8 @@ class RewardLearner:
                 "reward_kwargs: early_stop", settings["early_stop"], lambda a: 0 < a < 1, "None (no early stop) or in (0, 1)"
             )
         check_temporal_crop(settings["temporal_crop"], segment_length)
-        for name, settings_class in OPTION_SETTINGS.items():
-            make_option(name, settings[name], settings_class)
+        for name, option_class in REWARD_OPTIONS.items():
+            make_option(name, settings[name], option_class)
         if settings["exploration_bonus"] is not False and settings["ensemble_size"] < 2:
             raise ValueError(
                 f"exploration_bonus needs ensemble_size >= 2 (its σ is the members' spread), got {settings['ensemble_size']}"
@@ -161,23 +183,14 @@ class RewardLearner:
         transitions stored in ``buffer`` (REED), with ``pseudo_labels`` it also learns from unlabelled pairs drawn from
         ``buffer`` as ``queries`` draws queries (SURF). Without a buffer (r̂ fitted from journals alone) neither can be on.
         """
-        parts = {"dynamics_consistency": self.consistency, "pseudo_labels": self.pseudo_labels}
-        if (buffer is None or queries is None) and any(part is not None for part in parts.values()):
-            on = [name for name, part in parts.items() if part is not None]
+        on = [name for name, option in self.options.items() if option.needs_transitions]
+        if (buffer is None or queries is None) and on:
             raise ValueError(
                 f"reward_kwargs: {on} learn from the agent's stored transitions, which r̂ fitted from preferences alone "
                 "does not have: turn them off"
             )
-        consistency_loss = None
-        if self.consistency is not None:
-            assert buffer is not None
-            transitions = stored_transitions(buffer, rng, self.consistency.settings.max_transitions)
-            consistency_loss = self.consistency.train_epochs(*transitions, rng)
-        unlabeled = None
-        if self.pseudo_labels is not None:
-            assert buffer is not None and queries is not None
-            n = min(self.pseudo_labels.unlabeled_per_label * len(preferences), self.pseudo_labels.max_unlabeled)
-            unlabeled = queries.unlabeled_pairs(buffer, n, rng)
+        for option in self.options.values():
+            option.prepare(self, preferences, buffer, queries, rng)
         loss, accuracy, epochs = self.ensemble.train_epochs(
             preferences,
             self.epochs,
@@ -185,14 +198,10 @@ class RewardLearner:
             target_accuracy=1.0 if self.early_stop is None else self.early_stop,  # no training accuracy exceeds 1
             rng=rng,
             temporal_crop=self.temporal_crop,
-            robust_labels=self.label_selection,
-            unlabeled=unlabeled,
-            pseudo_labels=self.pseudo_labels,
+            options=list(self.options.values()),
         )
-        selection = self.label_selection
-        return RewardLearningReport(
-            loss, accuracy, epochs, consistency_loss, *((selection.trusted, selection.flipped) if selection else (None, None))
-        )
+        figures = {key: value for option in self.options.values() for key, value in option.finish().items()}
+        return RewardLearningReport(loss=loss, accuracy=accuracy, epochs=epochs, **figures)
 
     def record(self, session: int, step: int, labels: int, report: RewardLearningReport, correlation: float) -> None:
         """Add a reward update to ``history`` (what the reward report and a teacher's page show)."""
@@ -228,6 +237,16 @@ class RewardLearner:
     def __getstate__(self) -> dict:
         # the networks are saved by the algorithm as state dicts (``reward_model``, ``reward_learner.consistency``)
         return {**self.__dict__, "ensemble": None, "consistency": None}
+
+
+# the built-ins, in the order their hooks run (REED's pre-training before SURF's draw, as their papers order them)
+for _name, _option in (
+    ("dynamics_consistency", DynamicsConsistency),
+    ("pseudo_labels", PseudoLabels),
+    ("robust_labels", RobustLabels),
+    ("exploration_bonus", ExplorationBonus),
+):
+    register_reward_option(_name, _option)
 
 
 class ReplayRewards:

@@ -2,8 +2,7 @@
 
 import itertools
 import math
-from collections.abc import Callable
-from dataclasses import dataclass, field
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import torch as th
@@ -11,7 +10,10 @@ from stable_baselines3.common.utils import get_device
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_pride.common.utils import check_real
+from sb3_pride.common.reward_options import ExplorationBonus, PseudoLabels, RewardOption, RobustLabels
+
+#: where saved models (0.1 to 0.3) pickled the options' classes: unpickling looks them up here
+PICKLED_NAMES = (ExplorationBonus, PseudoLabels, RobustLabels)
 
 
 def preference_loss(returns: th.Tensor, labels: th.Tensor) -> th.Tensor:
@@ -89,150 +91,6 @@ def crop_pairs(
     cropped = th.gather(inputs, -2, index_t.unsqueeze(-1).expand(*index.shape, input_dim))
     mask = th.as_tensor(steps < lengths, dtype=inputs.dtype, device=inputs.device).expand(*index.shape)
     return cropped, mask, labels
-
-
-@dataclass
-class RobustLabels:
-    """
-    RIME's sample selection for noisy preferences (Cheng et al., ICML 2024, §4.1): before each epoch, every label's
-    divergence from the ensemble's prediction, ℓ = −[(1 − μ) ln(1 − P̂) − μ ln P̂] with P̂ the members' mean
-    P[σ1 ≻ σ0], decides how it is used:
-
-    - trusted (trained on as given) when ℓ < τ_lower = −ln ρ + α ρ + min(β_t s², 3), with ρ the largest divergence
-      among the labels trusted so far and s² their variance (running averages over epochs, rate 0.1), and β_t
-      decreasing linearly from ``beta_init`` to ``beta_min`` over ``beta_decay_epochs`` epochs;
-    - flipped (trained on as 1 − μ) when ℓ > −ln ``flip_probability``: the ensemble is that sure of the opposite
-      (never a 0.5 "equally good" label, which flipping leaves as it is);
-    - left out of that epoch otherwise.
-
-    The first epoch trusts every label (RIME starts ρ at 0: its first threshold is unbounded), so an untrained model
-    flips nothing. An epoch that would keep no label trains on all of them as given. Defaults: RIME's DMC and
-    Meta-World runs (α = 0.5, β from 3 to 1 over 60 epochs, flip below probability 0.001); RIME keeps the variance
-    of all trusted divergences by count, here it is a running average like ρ. RIME also warm-starts the reward model
-    on the pre-training phase's intrinsic reward; that part is not done here. The running values persist across
-    feedback sessions (they are saved with the model).
-
-    :param alpha: α, the weight of ρ in the base threshold
-    :param beta_init: β at the first epoch
-    :param beta_min: β after ``beta_decay_epochs``
-    :param beta_decay_epochs: reward-learning epochs over which β decreases
-    :param flip_probability: a label whose predicted probability is below this is flipped
-    """
-
-    alpha: float = 0.5
-    beta_init: float = 3.0
-    beta_min: float = 1.0
-    beta_decay_epochs: int = 60
-    flip_probability: float = 0.001
-    # the running values (not settings)
-    epochs: int = field(default=0, init=False)
-    max_divergence: float | None = field(default=None, init=False)
-    divergence_variance: float = field(default=0.0, init=False)
-    #: how many labels the last epoch trusted and flipped
-    trusted: int = field(default=0, init=False)
-    flipped: int = field(default=0, init=False)
-
-    def __post_init__(self) -> None:
-        for name in ("alpha", "beta_init", "beta_min"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value < math.inf:
-                raise ValueError(f"robust_labels: {name} must be a finite number >= 0, got {value!r}")
-        if self.beta_min > self.beta_init:
-            raise ValueError(f"robust_labels: beta_min must be <= beta_init, got {self.beta_min} > {self.beta_init}")
-        decay = self.beta_decay_epochs
-        if isinstance(decay, bool) or not isinstance(decay, int) or decay < 1:
-            raise ValueError(f"robust_labels: beta_decay_epochs must be an integer >= 1, got {self.beta_decay_epochs!r}")
-        if not (isinstance(self.flip_probability, float) and 0 < self.flip_probability < 0.5):
-            raise ValueError(f"robust_labels: flip_probability must be a float in (0, 0.5), got {self.flip_probability!r}")
-
-    @property
-    def beta(self) -> float:
-        """β_t: from ``beta_init`` down to ``beta_min``, linearly over ``beta_decay_epochs`` epochs."""
-        return max(self.beta_min, self.beta_init - (self.beta_init - self.beta_min) * self.epochs / self.beta_decay_epochs)
-
-    def select(self, divergence: np.ndarray, labels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """
-        One epoch's choice: (trusted, flipped) boolean masks of the labels μ ``labels`` with divergences
-        ``divergence``; the running values are updated from the trusted ones.
-        """
-        if self.max_divergence is None:  # the first epoch trusts every label, and sets ρ from them
-            trusted, flipped = np.ones(len(divergence), bool), np.zeros(len(divergence), bool)
-            self.max_divergence = 0.0
-        else:
-            rho = max(self.max_divergence, 1e-8)
-            lower = -np.log(rho) + self.alpha * rho + min(self.beta * self.divergence_variance, 3.0)
-            flipped = (divergence > -np.log(self.flip_probability)) & (labels != 0.5)
-            trusted = (divergence < lower) & ~flipped
-            if not (trusted | flipped).any():  # nothing kept: this epoch trains on every label as given
-                trusted = np.ones(len(divergence), bool)
-        if trusted.any():
-            self.max_divergence = 0.9 * self.max_divergence + 0.1 * float(divergence[trusted].max())
-            self.divergence_variance = 0.9 * self.divergence_variance + 0.1 * float(divergence[trusted].var())
-        self.epochs += 1
-        self.trusted, self.flipped = int(trusted.sum()), int(flipped.sum())
-        return trusted, flipped
-
-
-@dataclass
-class PseudoLabels:
-    """
-    SURF's semi-supervised reward learning (Park et al., ICLR 2022, §4.1): beside each minibatch of labelled pairs,
-    ``ratio`` × as many unlabelled pairs drawn from the replay buffer; each member labels them itself, ŷ = 1[P̂_m > 0.5],
-    and learns from those it is confident about, max(P̂_m, 1 − P̂_m) > ``threshold``, with the Bradley–Terry loss
-    weighted by ``weight`` (on cropped segments when ``temporal_crop`` is on, as SURF does). ``unlabeled_per_label``
-    unlabelled pairs are drawn per label before each feedback session's training (at most ``max_unlabeled``).
-
-    SURF's walker-walk settings: threshold 0.99, ratio 4, weight 1, 100 unlabelled pairs per label (10 on Meta-World).
-
-    :param threshold: τ, the confidence above which a member's pseudo-label is used
-    :param ratio: μ, unlabelled pairs per labelled pair in a minibatch
-    :param weight: λ, the weight of the unlabelled loss
-    :param unlabeled_per_label: unlabelled pairs drawn per label
-    :param max_unlabeled: the most unlabelled pairs drawn for one feedback session
-    """
-
-    threshold: float = 0.99
-    ratio: int = 4
-    weight: float = 1.0
-    unlabeled_per_label: int = 100
-    max_unlabeled: int = 10_000
-
-    def __post_init__(self) -> None:
-        if isinstance(self.threshold, bool) or not isinstance(self.threshold, (int, float)) or not 0.5 <= self.threshold < 1:
-            raise ValueError(f"pseudo_labels: threshold must be in [0.5, 1), got {self.threshold!r}")
-        if isinstance(self.weight, bool) or not isinstance(self.weight, (int, float)) or not 0 < self.weight < math.inf:
-            raise ValueError(f"pseudo_labels: weight must be a finite number > 0, got {self.weight!r}")
-        for name in ("ratio", "unlabeled_per_label", "max_unlabeled"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"pseudo_labels: {name} must be an integer >= 1, got {value!r}")
-
-
-@dataclass
-class ExplorationBonus:
-    """
-    RUNE's exploration bonus (Liang et al., *Reward Uncertainty for Exploration in Preference-based Reinforcement
-    Learning*, ICLR 2022): from the first feedback session on, SAC learns from r̂(s, a) + β_t · σ(s, a), where σ is the
-    standard deviation of the ensemble members' r̂_m(s, a) (where they disagree, a label would teach the most) and
-    β_t = β_0 (1 − ρ)^t decays with the env steps t. The bonus is computed on each SAC minibatch with the current
-    ensemble; the stored rewards stay r̂.
-
-    RUNE's settings: β_0 = 0.05, ρ = 1e-5 (RIME's re-implementation uses ρ = 1e-3).
-
-    :param beta_init: β_0, the bonus weight at step 0
-    :param beta_decay: ρ, its decay per env step
-    """
-
-    beta_init: float = 0.05
-    beta_decay: float = 1e-5
-
-    def __post_init__(self) -> None:
-        check_real("exploration_bonus: beta_init", self.beta_init, lambda beta: 0 < beta < math.inf, "> 0 and finite")
-        check_real("exploration_bonus: beta_decay", self.beta_decay, lambda rho: 0 <= rho < 1, "in [0, 1)")
-
-    def beta(self, step: int) -> float:
-        """β_t = β_0 (1 − ρ)^t."""
-        return self.beta_init * (1.0 - self.beta_decay) ** step
 
 
 class PreferenceDataset:
@@ -421,9 +279,7 @@ class RewardEnsemble(nn.Module):
         target_accuracy: float = 0.97,
         rng: np.random.Generator | None = None,
         temporal_crop: tuple[int, int] | None = None,
-        robust_labels: RobustLabels | None = None,
-        unlabeled: np.ndarray | None = None,
-        pseudo_labels: PseudoLabels | None = None,
+        options: Sequence[RewardOption] = (),
     ) -> tuple[float, float, int]:
         """
         Train on D for up to ``max_epochs`` epochs, each member on its own shuffling of D (the loss is summed
@@ -434,10 +290,9 @@ class RewardEnsemble(nn.Module):
         :param temporal_crop: SURF's temporal cropping (``crop_pairs``): at every minibatch each member sees each
             pair cropped to a random length in ``[min_length, max_length]``, with its own random start in each
             segment. None: whole segments (PEBBLE)
-        :param robust_labels: RIME's selection of the labels each epoch trains on (trusted as given, confidently
-            wrong ones flipped, the rest left out); its running values are updated. None: every label as given
-        :param unlabeled: (n_u, 2, k, input_dim) unlabelled pairs, for ``pseudo_labels``
-        :param pseudo_labels: SURF's semi-supervised loss on ``unlabeled`` (``PseudoLabels``). None: labels only
+        :param options: the reward-learning options on (``RewardOption``), in order: each may choose the pairs and
+            labels an epoch trains on (RIME's ``RobustLabels``) and add a loss to each minibatch's (SURF's
+            ``PseudoLabels``)
         :return: (last epoch's mean loss per member, its accuracy, epochs run)
         """
         rng = rng if rng is not None else np.random.default_rng()
@@ -446,15 +301,13 @@ class RewardEnsemble(nn.Module):
         labels = th.as_tensor(dataset.labels, device=self.device)
         n = len(labels)
         loss_value, accuracy, epoch = float("nan"), 0.0, 0
-        all_labels = labels
-        semi_supervised = pseudo_labels is not None and unlabeled is not None and len(unlabeled) > 0
-        unlabeled_t = th.as_tensor(unlabeled, device=self.device) if semi_supervised else None
+        given = labels
         for epoch in range(1, max_epochs + 1):  # noqa: B007 (returned: the epochs run)
-            used = np.arange(n)
-            if robust_labels is not None:
-                trusted, flipped = robust_labels.select(self.label_divergence(inputs, all_labels), dataset.labels)
-                used = np.flatnonzero(trusted | flipped)
-                labels = th.where(th.as_tensor(flipped, device=self.device), 1.0 - all_labels, all_labels)
+            used, labels = np.arange(n), given
+            for option in options:
+                chosen = option.choose_labels(self, inputs, labels, dataset.labels)
+                if chosen is not None:
+                    used, labels = chosen
             orders = th.as_tensor(
                 np.stack([used[rng.permutation(len(used))] for _ in range(self.n_members)]), device=self.device
             )
@@ -470,8 +323,10 @@ class RewardEnsemble(nn.Module):
                 returns = rewards.sum(dim=-1)  # (members, b, 2): R̂0, R̂1 (Eq. 1)
                 # Eq. 2 for each member, summed over members
                 loss = preference_loss(returns, batch_labels) * self.n_members
-                if unlabeled_t is not None and pseudo_labels is not None:
-                    loss = loss + self.pseudo_label_loss(unlabeled_t, idx.shape[1], pseudo_labels, rng, temporal_crop)
+                for option in options:
+                    extra = option.extra_loss(self, idx.shape[1], rng, temporal_crop)
+                    if extra is not None:
+                        loss = loss + extra
                 self.optimizer.zero_grad()
                 loss.backward()
                 self.optimizer.step()

@@ -19,7 +19,7 @@ from sb3_pride.common.env_checks import check_env, env_id
 from sb3_pride.common.journal import AtomicSaves, JournalBook, journal_header
 from sb3_pride.common.learned_reward import LearnedReward
 from sb3_pride.common.queries import QuerySampler
-from sb3_pride.common.reward_learner import OPTION_SETTINGS, ReplayRewards, RewardLearner
+from sb3_pride.common.reward_learner import ReplayRewards, RewardLearner
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import InteractiveTeacher, Teacher
 from sb3_pride.common.utils import seeded
@@ -81,8 +81,6 @@ class PEBBLE(AtomicSaves, SAC):
     policy_aliases: ClassVar[dict[str, type[SACPolicy]]] = SAC.policy_aliases  # type: ignore[assignment]
     #: the replay buffer class this algorithm needs (a user's ``replay_buffer_class`` must subclass it)
     buffer_class: ClassVar[type[PreferenceReplayBuffer]] = PreferenceReplayBuffer
-    #: the reward-learning options given as False, True or a dict, and the class of their settings
-    option_settings: ClassVar[dict[str, type]] = OPTION_SETTINGS
     #: the callbacks that drive the algorithm's phases, before the user's
     phase_callbacks: ClassVar[tuple[type[BaseCallback], ...]] = (FeedbackCallback,)
     replay_buffer: PreferenceReplayBuffer
