@@ -42,6 +42,15 @@ def recorded_pair(env_id: str, renderer: SegmentRenderer, segment_length: int) -
     return np.array(states).reshape(2, segment_length, -1)
 
 
+def cpu_model() -> str:
+    """The CPU's model name (Linux), else the platform's processor."""
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        return next(line.split(":", 1)[1].strip() for line in lines if line.startswith("model name"))
+    except (OSError, StopIteration):
+        return platform.processor() or "CPU"
+
+
 def seconds_per_step(env: gym.Env, steps: int) -> float:
     """Wall seconds per ``env.step`` under random actions (episodes reset as they end)."""
     env.action_space.seed(0)
@@ -113,13 +122,13 @@ def run_wall_times(env_id: str, steps: int) -> dict:
     th.set_num_threads(1)
     times = {}
     for name in ("scripted", "web"):
-        teacher = WebTeacher(port=0) if name == "web" else "oracle"
-        model = PEBBLE("MlpPolicy", env_id, teacher=teacher, learning_starts=100, unsupervised_steps=10**7, seed=0)
+        web = WebTeacher(port=0) if name == "web" else None
+        model = PEBBLE("MlpPolicy", env_id, teacher=web or "oracle", learning_starts=100, unsupervised_steps=10**7, seed=0)
         start = time.perf_counter()
         model.learn(steps)
         times[f"{name}_s"] = time.perf_counter() - start
-        if name == "web":
-            teacher.close()
+        if web is not None:
+            web.close()
     return times
 
 
@@ -199,8 +208,8 @@ def main() -> None:
 
     lines = [
         "Command: `MUJOCO_GL=egl OMP_NUM_THREADS=1 taskset -c 0 python benchmarks/render_speed.py --out "
-        f"benchmarks/results/render_speed.md` (one core of this 2-core machine, {platform.processor() or 'CPU'}, "
-        "while other jobs used the other; Mesa EGL software rendering).",
+        f"benchmarks/results/render_speed.md` (pinned to one core of this 2-core machine, {cpu_model()}, which other "
+        "jobs shared meanwhile: the times are upper bounds; Mesa EGL software rendering).",
         "",
         f"MuJoCo tasks, re-rendered from recorded states: one pair = two {args.segment_length}-step segments at "
         f"{args.width} x {args.height}; median of {args.repeats}.",

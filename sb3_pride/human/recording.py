@@ -21,6 +21,7 @@ import struct
 import tempfile
 import threading
 import zlib
+from array import array
 from collections import OrderedDict, deque
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -49,7 +50,7 @@ class Chunk:
     env: int
     first: int
     path: Path
-    offsets: list[int] = field(default_factory=list)
+    offsets: array = field(default_factory=lambda: array("q"))  # 8 bytes per frame
     size: int = 0
 
 
@@ -219,6 +220,17 @@ class FrameRecording:
             foreign = np.isfinite(flat[:, 0]) & (flat[:, 0] != self.token)
             flat[foreign] = np.nan
             return int(foreign.sum())
+
+    def in_window(self, keys: np.ndarray) -> np.ndarray:
+        """Per key of ``keys`` (k, 3), whether its frame is in the window (a frame that left it is never offered)."""
+        with self._lock:
+            return np.array(
+                [
+                    token == self.token and (int(episode), int(index) - int(index) % CHUNK_FRAMES) in self._chunks
+                    for token, episode, index in np.nan_to_num(np.asarray(keys, dtype=np.float64), nan=-1.0)
+                ],
+                dtype=bool,
+            )
 
     def records(self, keys: np.ndarray) -> list[bytes]:
         """The stored (compressed) frames of ``keys`` (k, 3), read now: what ``decode`` turns into frames."""
