@@ -268,7 +268,7 @@ def screen_one(
 
     from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
     from sb3_pride.common.queries import sample_segment_pairs
-    from sb3_pride.common.queries import pair_features, select_queries
+    from sb3_pride.common.query_selection import pair_features, select_queries
     from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
     from sb3_pride.common.reward_options import PseudoLabels, RobustLabels
     from sb3_pride.common.teachers import InteractiveTeacher, make_teacher

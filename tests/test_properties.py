@@ -33,7 +33,8 @@ from sb3_pride.common.teachers import TEACHERS
 from sb3_pride.pride.diffusion import NORMALIZATIONS
 from sb3_pride.pride.generator import FILTERS, GENERATIONS
 from sb3_pride.common.journal import PreferenceJournal
-from sb3_pride.common.queries import QUERY_SELECTIONS, SegmentPairs
+from sb3_pride.common.queries import SegmentPairs
+from sb3_pride.common.query_selection import QUERY_SELECTIONS
 from sb3_pride.common.reward_learner import RewardLearner
 from sb3_pride.common.utils import merge_kwargs
 
@@ -163,7 +164,9 @@ PEBBLE_INVALID = [
     ),
     *(Invalid(p, not_non_negative_int(), f"{named(p)} must be a non-negative integer") for p in PEBBLE_NON_NEGATIVE),
     Invalid("segment_length", st.integers(201, 10**9), "is longer than an episode of this env (200 steps)", "over-episode"),
-    Invalid("query_selection", not_one_of(QUERY_SELECTIONS), f"query_selection must be one of {QUERY_SELECTIONS}"),
+    Invalid(
+        "query_selection", not_one_of(tuple(QUERY_SELECTIONS)), f"query_selection must be one of {tuple(QUERY_SELECTIONS)}"
+    ),
     Invalid("reward_kwargs.learning_rate", st.floats(max_value=0.0), "reward_kwargs: learning_rate must be > 0"),
     Invalid(
         "reward_kwargs.early_stop",
@@ -239,7 +242,7 @@ VALID = [
     (PEBBLE, "unsupervised_steps", st.integers(0, 10**12)),
     (PEBBLE, "pretraining_kwargs.critic_reset_updates", st.one_of(st.integers(0, 10**6), numpy_ints(0, 10**6))),
     (PEBBLE, "pretraining_kwargs.entropy_k", st.integers(1, 10**6)),
-    (PEBBLE, "query_selection", st.sampled_from(QUERY_SELECTIONS)),
+    (PEBBLE, "query_selection", st.sampled_from(tuple(QUERY_SELECTIONS))),
     (PEBBLE, "reward_kwargs.learning_rate", st.floats(min_value=0.0, max_value=1e3, exclude_min=True)),
     (PEBBLE, "reward_kwargs.epochs", st.one_of(st.integers(1, 10**6), numpy_ints(1, 10**6))),
     (PEBBLE, "reward_kwargs.early_stop", st.one_of(st.none(), st.floats(0.0, 1.0, exclude_min=True, exclude_max=True))),

@@ -4,7 +4,8 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_pride import PreferenceReplayBuffer
-from sb3_pride.common.queries import sample_segment_pairs, segment_starts, select_queries
+from sb3_pride.common.queries import sample_segment_pairs, segment_starts
+from sb3_pride.common.query_selection import select_queries
 
 
 def filled_buffer(n_envs, size, steps, seed=0):
@@ -85,7 +86,7 @@ def test_kcenter_picks_the_uncovered_clusters_first():
     """Three tight clusters of candidates, one already covered by a labelled pair: k-center asks about one pair of
     each uncovered cluster before a second pair of any, and never about the covered one; disagreement alone would
     crowd into the cluster where the members disagree."""
-    from sb3_pride.common.queries import kcenter_greedy
+    from sb3_pride.common.query_selection import kcenter_greedy
 
     rng = np.random.default_rng(0)
     centers = np.array([[0.0, 0.0], [10.0, 0.0], [0.0, 10.0]])

@@ -11,12 +11,11 @@ import torch as th
 
 from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.common.journal import query_id
+from sb3_pride.common.query_selection import QUERY_SELECTIONS, pair_features, select_queries
 from sb3_pride.common.utils import check_choice, check_positive_ints, check_real
 
 #: how many times, at most, a session draws again when its candidates were asked before (``QuerySampler.fresh_pairs``)
 REDRAWS = 10
-
-QUERY_SELECTIONS = ("uniform", "disagreement", "entropy", "kcenter", "kcenter_disagreement", "kcenter_entropy")
 
 
 @dataclass
@@ -161,83 +160,6 @@ def sample_segment_pairs(
     )
 
 
-def preference_probabilities(member_returns: th.Tensor) -> th.Tensor:
-    """P[σ1 ≻ σ0] per ensemble member (Eq. 1) from segment returns of shape (members, n, 2)."""
-    return th.softmax(member_returns, dim=-1)[..., 1]
-
-
-def kcenter_greedy(candidates: np.ndarray, centers: np.ndarray, n: int) -> np.ndarray:
-    """
-    Greedy k-center (Sener & Savarese, ICLR 2018; B-Pref's ``KCenterGreedy``): ``n`` candidates picked one at a time,
-    each the one farthest (Euclidean) from its nearest center, the centers being ``centers`` and the candidates picked
-    before it. Queries so chosen cover the space of segments instead of crowding where the reward model is unsure.
-
-    :param candidates: (n_candidates, dim) features
-    :param centers: (n_centers, dim) features of what is covered already (the labelled pairs); may be empty
-    :param n: how many to pick, ``<= n_candidates``
-    :return: the picked indices, in the order picked
-    """
-    points = th.as_tensor(candidates, dtype=th.float32)
-    if len(centers):
-        nearest = th.cdist(points, th.as_tensor(centers, dtype=th.float32)).min(dim=1).values
-    else:
-        nearest = th.full((len(points),), float("inf"))
-    picked: list[int] = []
-    for _ in range(n):
-        # without centers, the first pick is the first candidate (they are random already)
-        index = int(th.argmax(nearest)) if th.isfinite(nearest).any() or picked else 0
-        picked.append(index)
-        nearest = th.minimum(nearest, th.cdist(points, points[index : index + 1]).squeeze(1))
-        nearest[index] = -1.0  # never picked twice
-    return np.array(picked, dtype=np.int64)
-
-
-def pair_features(observations: np.ndarray) -> np.ndarray:
-    """A pair's k-center features, as in B-Pref: the observations of both segments, flattened: (n, 2, k, d) -> (n, 2kd)."""
-    return observations.reshape(len(observations), int(np.prod(observations.shape[1:])))
-
-
-def select_queries(
-    member_returns: th.Tensor,
-    n_queries: int,
-    method: str,
-    features: np.ndarray | None = None,
-    labeled_features: np.ndarray | None = None,
-) -> np.ndarray:
-    """
-    Indices of the ``n_queries`` candidate pairs to ask about.
-
-    :param member_returns: (members, n_candidates, 2) predicted segment returns of each ensemble member
-    :param method: "uniform" (the first ``n_queries``, candidates being random already), "disagreement"
-        (largest std over members of P[σ1 ≻ σ0]) or "entropy" (largest mean over members of the entropy of
-        P[σ1 ≻ σ0]), as B-Pref's ``feed_type`` 0, 1 and 2; "kcenter" (greedy k-center on ``features``, the labelled
-        pairs' ``labeled_features`` counting as centers), "kcenter_disagreement" and "kcenter_entropy" (k-center
-        among the half of the candidates with the largest disagreement or entropy), B-Pref's ``feed_type`` 3, 4, 5
-    :param features: (n_candidates, dim) the candidates' features (``pair_features``), for the k-center methods
-    :param labeled_features: (n_labeled, dim) the labelled pairs' features, for the k-center methods
-    """
-    if method == "uniform":
-        return np.arange(n_queries)
-    if method not in QUERY_SELECTIONS:
-        raise ValueError(f"query_selection must be one of {QUERY_SELECTIONS}, got {method!r}")
-    if method.startswith("kcenter"):
-        if features is None:
-            raise ValueError(f"query_selection={method!r} needs the candidates' features")
-        centers = np.zeros((0, features.shape[1])) if labeled_features is None else labeled_features
-        pool = np.arange(len(features))
-        if method != "kcenter":  # B-Pref: the most uncertain half of the candidates, then k-center among them
-            scored = select_queries(member_returns, max(n_queries, len(pool) // 2), method.removeprefix("kcenter_"))
-            pool = np.sort(scored)
-        return pool[kcenter_greedy(features[pool], centers, n_queries)]
-    p = preference_probabilities(member_returns)
-    if method == "disagreement":
-        score = p.std(dim=0) if len(p) > 1 else th.zeros(p.shape[1])
-    else:
-        eps = 1e-8
-        score = -(p * th.log(p + eps) + (1 - p) * th.log(1 - p + eps)).mean(dim=0)
-    return th.topk(score, k=n_queries).indices.cpu().numpy()
-
-
 def stored_transitions(
     buffer: PreferenceReplayBuffer, rng: np.random.Generator, limit: int | None = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -269,7 +191,8 @@ class QuerySampler:
     ``selection`` are asked. Also the rows QPA's hybrid replay draws from (the same recent episodes).
 
     :param segment_length: steps per segment; a segment never crosses an episode end
-    :param selection: "uniform", "disagreement", "entropy", "kcenter", "kcenter_disagreement" or "kcenter_entropy"
+    :param selection: a name of ``QUERY_SELECTIONS``: "uniform", "disagreement", "entropy", "kcenter",
+        "kcenter_disagreement", "kcenter_entropy" or one registered with ``register_query_selection``
         (``select_queries``); the first feedback session is always uniform (r̂ knows nothing yet)
     :param candidates_multiplier: candidate pairs per query for the non-uniform selections (PEBBLE: 10)
     :param max_query_episodes: segments are drawn from this many most recent episodes (PEBBLE: 100; QPA: 10)
@@ -298,7 +221,7 @@ class QuerySampler:
         check_positive_ints(
             segment_length=segment_length, candidates_multiplier=candidates_multiplier, max_query_episodes=max_query_episodes
         )
-        check_choice("query_selection", selection, QUERY_SELECTIONS)
+        check_choice("query_selection", selection, tuple(QUERY_SELECTIONS))
         check_real("hybrid_replay", hybrid_replay, lambda share: 0 <= share <= 1, "in [0, 1]")
         self.segment_length, self.selection = segment_length, selection
         self.candidates_multiplier, self.max_query_episodes = candidates_multiplier, max_query_episodes
@@ -344,6 +267,7 @@ class QuerySampler:
                 selection,
                 features=pair_features(candidates.observations),
                 labeled_features=pair_features(labeled_inputs[..., :n_obs]),
+                pairs=candidates,
             )
             candidates = candidates[chosen]
         return candidates
