@@ -324,7 +324,9 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     if spec["algo"] != "sac":  # the run's answers, for a later run to start from (prior_preferences)
         model_kwargs.setdefault("preference_journal", str(folder / "preferences.jsonl"))
     if spec.get("seconds_per_answer"):  # the teacher answers at a person's pace
-        from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
+        from paced_teacher import PacedTeacher
+
+        from sb3_pride.common.teachers import InteractiveTeacher, make_teacher
 
         name = kwargs.get("teacher", algorithm_defaults(spec["algo"])["teacher"])
         teacher = make_teacher(name, seed=spec["seed"])

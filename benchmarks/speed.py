@@ -28,11 +28,12 @@ os.environ.setdefault("MUJOCO_GL", "disable")
 import numpy as np
 import torch as th
 from provenance import provenance, utc_now
+from paced_teacher import PacedTeacher
 from run import load_variants, merge, parse_overrides
 from stable_baselines3 import SAC
 
 import sb3_pride
-from sb3_pride.common.teachers import InteractiveTeacher, PacedTeacher, make_teacher
+from sb3_pride.common.teachers import InteractiveTeacher, make_teacher
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pride.callbacks import GeneratorCallback
 from sb3_pride.zoo import hyperparams_dir, model_kwargs

@@ -1276,3 +1276,19 @@ def test_speed_records_the_code_it_timed_and_when(monkeypatch, tmp_path):
     assert report["started"] <= report["ended"] and report["started"].endswith("+00:00")
     assert set(report["version"]) >= {"sb3_pride", "commit", "code_tree", "code_dirty"}
     assert len(report["runs"]["sac"]) == 1
+
+
+def test_a_paced_teacher_takes_its_time_and_refuses_bad_settings(monkeypatch):
+    """benchmarks/paced_teacher.py: a scripted teacher at a person's pace, what waiting for answers costs is measured
+    with; a bad pace or a teacher that is not callable is refused, naming it."""
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    paced = load_script("paced_teacher")
+    from sb3_pride.common.teachers import ScriptedTeacher
+
+    oracle = ScriptedTeacher.from_preset("oracle")
+    for bad in (-1.0, float("inf"), "3"):
+        with pytest.raises(ValueError, match="seconds_per_answer"):
+            paced.PacedTeacher(oracle, bad)
+    with pytest.raises(ValueError, match="teacher must be a Teacher"):
+        paced.PacedTeacher("oracle", 1.0)
+    assert paced.PacedTeacher(oracle, 0.5).seconds_per_answer == 0.5

@@ -4,7 +4,6 @@ the segments (a person), B-Pref's scripted teachers, and the registry that resol
 """
 
 import functools
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from abc import ABC, abstractmethod
@@ -172,28 +171,6 @@ class ScriptedTeacher:
         labels[equal] = 0.5
         labels[skipped] = np.nan
         return labels
-
-
-class PacedTeacher:
-    """
-    A teacher that takes ``seconds_per_answer`` per query, then answers as ``teacher`` does: a person's pace,
-    simulated, to measure what waiting for answers costs (``PEBBLE(asynchronous_feedback=...)``).
-
-    :param teacher: the teacher that gives the answers (a ``Teacher``, e.g. ``ScriptedTeacher.from_preset("oracle")``)
-    :param seconds_per_answer: the time each answer takes
-    """
-
-    def __init__(self, teacher: Teacher, seconds_per_answer: float):
-        if not callable(teacher):
-            raise ValueError(f"teacher must be a Teacher (a callable), got {type(teacher).__name__}")
-        if not (isinstance(seconds_per_answer, (int, float)) and 0 <= seconds_per_answer < float("inf")):
-            raise ValueError(f"seconds_per_answer must be a finite number >= 0, got {seconds_per_answer!r}")
-        self.teacher = teacher
-        self.seconds_per_answer = float(seconds_per_answer)
-
-    def __call__(self, pairs: SegmentPairs) -> np.ndarray:
-        time.sleep(self.seconds_per_answer * len(pairs))
-        return self.teacher(pairs)
 
 
 #: makes a teacher from the run's seed
