@@ -11,8 +11,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
-from sb3_pride.pebble.migration import RENAMED_PEBBLE_SETTINGS, STRUCTURED_SETTINGS as STRUCTURED
+from sb3_pride.pebble.earlier_versions import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
+from sb3_pride.pebble.earlier_versions import RENAMED_PEBBLE_SETTINGS
+from sb3_pride.pebble.settings import STRUCTURED_SETTINGS as STRUCTURED
 
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 

@@ -5,7 +5,7 @@ import torch as th
 from stable_baselines3.common.env_util import make_vec_env
 from stable_baselines3.common.vec_env import VecNormalize
 
-from sb3_pride import PEBBLE, PreferenceReplayBuffer
+from sb3_pride import PEBBLE, PRIDE, PreferenceReplayBuffer
 from sb3_pride.common.utils import merge_kwargs
 
 
@@ -192,59 +192,30 @@ def test_the_reward_learner_holds_each_options_settings(tiny_kwargs):
         PEBBLE("MlpPolicy", "Pendulum-v1", **merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(consistency={}))))
 
 
-def test_a_flat_setting_of_earlier_versions_warns_and_lands_in_its_dict(tiny_kwargs):
-    """The flat names of 0.1.0 and 0.2.0 still construct, with a DeprecationWarning naming the new place; a setting
-    given both ways is refused, and a keyword PEBBLE never had is a TypeError as for any Python function."""
-    with pytest.warns(DeprecationWarning, match="reward_epochs is deprecated: give it as reward_kwargs"):
-        model = PEBBLE("MlpPolicy", "Pendulum-v1", reward_epochs=7, learning_starts=100)
-    assert model.reward_kwargs == {"epochs": 7} and model.reward_learner.epochs == 7
-    with pytest.warns(DeprecationWarning, match="hybrid_replay is deprecated: give it as query_kwargs"):
-        model = PEBBLE("MlpPolicy", "Pendulum-v1", hybrid_replay=0.5, **tiny_kwargs)
-    assert model.query_kwargs == {"hybrid_replay": 0.5} and model.query_sampler.hybrid_replay == 0.5
-    with pytest.raises(ValueError, match=r"reward_epochs is given twice: .* reward_kwargs\['epochs'\]"):
-        PEBBLE("MlpPolicy", "Pendulum-v1", reward_epochs=7, **tiny_kwargs)  # TINY's reward_kwargs hold epochs
-    with pytest.raises(TypeError, match=r"unexpected keyword arguments \['reward_epoch'\]"):
+def test_a_name_of_earlier_versions_is_a_type_error_that_names_its_new_place(tiny_kwargs):
+    """The flat names of 0.1.0 and 0.2.0 are refused by the constructor, each error naming the setting's new place; a
+    keyword PEBBLE never had is named as unknown."""
+    with pytest.raises(TypeError, match=r"reward_epochs is now reward_kwargs=\{'epochs': \.\.\.\}"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", reward_epochs=7, learning_starts=100)
+    with pytest.raises(TypeError, match=r"hybrid_replay is now query_kwargs=\{'hybrid_replay': \.\.\.\}"):
+        PEBBLE("MlpPolicy", "Pendulum-v1", hybrid_replay=0.5, **tiny_kwargs)
+    with pytest.raises(TypeError, match="PEBBLE takes no reward_epoch"):
         PEBBLE("MlpPolicy", "Pendulum-v1", reward_epoch=7)
+    with pytest.raises(TypeError, match=r"diffusion_width is now generator_kwargs=\{'width': \.\.\.\}"):
+        PRIDE("MlpPolicy", "Pendulum-v1", diffusion_width=64)
 
 
-def test_a_model_saved_by_version_0_2_0_loads_with_its_reward_learning_state():
-    """``tests/data/pebble_0.2.0.zip`` was saved by version 0.2.0 (flat reward-learning settings, REED's heads under
-    "consistency_model", RIME's running selection and the scripted teacher as attributes of the model): its settings
-    move into reward_kwargs, query_kwargs and pretraining_kwargs, r̂ predicts as it did, and the teacher, RIME's
-    selection and REED's heads go on where they were."""
+@pytest.mark.parametrize("algo, name", [(PEBBLE, "pebble_0.2.0.zip"), (PRIDE, "pride_0.1.0.zip")])
+def test_a_model_saved_by_an_earlier_version_is_refused_naming_the_version_that_reads_it(algo, name, tmp_path):
+    """Models saved by 0.1.0 and 0.2.0 hold their settings flat: load() refuses them before anything is made, with a
+    message naming the version that reads them; their journals are read by this version (prior_preferences)."""
     from pathlib import Path
 
-    from stable_baselines3.common.save_util import load_from_zip_file
-
-    data = Path(__file__).parent / "data"
-    expected = np.load(data / "pebble_0.2.0_expected.npz")
-    model = PEBBLE.load(data / "pebble_0.2.0.zip", env=gym.make("Pendulum-v1"))
-    assert model.reward_kwargs["epochs"] == 20 and model.reward_kwargs["ensemble_size"] == 2
-    assert model.reward_kwargs["early_stop"] is None and tuple(model.reward_kwargs["temporal_crop"]) == (6, 9)
-    assert model.reward_kwargs["robust_labels"] is True and model.reward_kwargs["exploration_bonus"] is True
-    assert model.query_kwargs["hybrid_replay"] == 0.25 and model.query_sampler.hybrid_replay == 0.25
-    assert model.pretraining_kwargs["critic_reset_updates"] == 10
-    assert not hasattr(model, "reward_epochs") and not hasattr(model, "hybrid_replay")
-    np.testing.assert_allclose(model.reward_model.predict(expected["obs"], expected["actions"]), expected["rewards"])
-    teacher = model.feedback.resolve(model.teacher, model.seed)
-    np.testing.assert_array_equal(teacher.rng.random(3), expected["teacher_draws"])
-    assert len(model.preferences) == expected["n_preferences"]
-    selection = model.reward_learner.label_selection
-    assert selection.epochs > 0 and selection.beta == pytest.approx(expected["label_selection_beta"])
-    # REED's heads: the saved weights, on r̂'s encoder
-    consistency = model.reward_learner.consistency
-    assert consistency.settings.max_transitions == 200 and consistency.members[0] is model.reward_model.members
-    _, saved, _ = load_from_zip_file(data / "pebble_0.2.0.zip")
-    heads = consistency.state_dict()
-    assert heads.keys() == saved["consistency_model"].keys()
-    for name, tensor in saved["consistency_model"].items():
-        assert th.equal(heads[name].cpu(), tensor.cpu()), name
-    moments = [state["exp_avg"] for state in consistency.optimizer.state_dict()["state"].values()]
-    saved_moments = [state["exp_avg"] for state in saved["consistency_model.optimizer"]["state"].values()]
-    assert len(moments) == len(saved_moments) > 0
-    assert all(th.equal(a.cpu(), b.cpu()) for a, b in zip(moments, saved_moments, strict=True))
-    model.learn(100, reset_num_timesteps=False)
-    assert model.num_timesteps == 800
+    path = Path(__file__).parent / "data" / name
+    with pytest.raises(ValueError, match=r"saved by sb3_pride 0\.1 or 0\.2.*sb3_pride==0\.2\.0.*prior_preferences"):
+        algo.load(path, env=gym.make("Pendulum-v1"))
+    with pytest.raises(ValueError, match=r"saved by sb3_pride 0\.1 or 0\.2"):
+        algo.load(str(path).removesuffix(".zip"))  # as SB3 finds it, ".zip" added
 
 
 def test_a_custom_teacher_is_checked(tiny_kwargs):
@@ -325,15 +296,16 @@ def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo)
 
 
 def test_structured_settings_given_to_load_change_the_saved_ones_entry_by_entry(tiny_kwargs, tmp_path):
-    """load(reward_kwargs=...) keeps the saved entries it does not name; an old flat name warns and is checked too."""
+    """load(reward_kwargs=...) keeps the saved entries it does not name; an old flat name is refused, naming its place."""
     kwargs = merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(dynamics_consistency=dict(epochs=1, max_transitions=100))))
     PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **kwargs).save(tmp_path / "model")
     loaded = PEBBLE.load(tmp_path / "model", reward_kwargs=dict(epochs=7))
     assert loaded.reward_kwargs["epochs"] == 7 and tuple(loaded.reward_kwargs["net_arch"]) == (32, 32)
     assert loaded.reward_learner.consistency is not None
-    with pytest.warns(DeprecationWarning, match="dynamics_consistency is deprecated"):
-        with pytest.raises(ValueError, match="loading cannot turn it on or off"):
-            PEBBLE.load(tmp_path / "model", dynamics_consistency=False)
+    with pytest.raises(ValueError, match="loading cannot turn it on or off"):
+        PEBBLE.load(tmp_path / "model", reward_kwargs=dict(dynamics_consistency=False))
+    with pytest.raises(TypeError, match=r"dynamics_consistency is now reward_kwargs"):
+        PEBBLE.load(tmp_path / "model", dynamics_consistency=False)
 
 
 def test_robust_labels_and_consistency_both_survive_a_save_and_load(tiny_kwargs, tmp_path):
@@ -351,17 +323,3 @@ def test_robust_labels_and_consistency_both_survive_a_save_and_load(tiny_kwargs,
     assert loaded.reward_learner.label_selection.beta == selection.beta
     for saved, restored in zip(model.consistency_model.parameters(), loaded.consistency_model.parameters(), strict=True):
         assert th.equal(saved, restored)
-
-
-def test_an_old_models_settings_change_when_it_is_loaded_with_new_ones():
-    """A model saved by 0.2.0 (flat settings) loaded with reward_kwargs, or an old flat name, takes the new value."""
-    from pathlib import Path
-
-    path = Path(__file__).parent / "data" / "pebble_0.2.0.zip"
-    loaded = PEBBLE.load(path, env=gym.make("Pendulum-v1"), reward_kwargs=dict(epochs=5), query_kwargs=dict(hybrid_replay=0.0))
-    assert loaded.reward_learner.epochs == 5 and loaded.query_sampler.hybrid_replay == 0.0
-    assert tuple(loaded.reward_kwargs["net_arch"]) == (32, 32)  # the saved entries it did not name are kept
-    with pytest.warns(DeprecationWarning, match="reward_epochs is deprecated") as caught:
-        loaded = PEBBLE.load(path, env=gym.make("Pendulum-v1"), reward_epochs=7)
-    assert loaded.reward_learner.epochs == 7
-    assert any(warning.filename == __file__ for warning in caught)  # it names the user's line, so Python shows it

@@ -1,4 +1,3 @@
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch as th
@@ -146,20 +145,10 @@ def test_prides_defaults_are_pebbles_with_half_the_labels_front_loaded_and_reeds
     assert partial.reward_learner.consistency.settings.epochs == 5
     assert partial.reward_learner.consistency.settings.batch_size == 64
     assert PRIDE_REWARD_DEFAULTS == {"dynamics_consistency": {"epochs": 5}}
-    # SB3's load() builds with _init_setup_model=False: a schedule given there is kept, the default is PEBBLE's
+    # SB3's load() builds with _init_setup_model=False, then restores the saved schedule
     assert PRIDE("MlpPolicy", "Pendulum-v1", feedback_schedule="shrinking", _init_setup_model=False).feedback_schedule == (
         "shrinking"
     )
-    assert PRIDE("MlpPolicy", "Pendulum-v1", _init_setup_model=False).feedback_schedule == "constant"
-
-
-def test_a_model_saved_by_an_earlier_version_keeps_its_4000_diffusion_steps():
-    """0.1.0 and 0.2.0 saved PEBBLE's settings flat and only the generator settings given: their default was 4000."""
-    from sb3_pride.pebble.migration import migrate_generator_settings
-
-    assert migrate_generator_settings({"reward_epochs": 50}) == {"train_steps": 4000}
-    assert migrate_generator_settings({"reward_epochs": 50, "diffusion_train_steps": 300}) == {"train_steps": 300}
-    assert migrate_generator_settings({"reward_kwargs": {"epochs": 50}}) == {}  # this version's: its own settings
 
 
 @pytest.mark.slow
@@ -423,35 +412,8 @@ def test_bad_mixing_input_names_the_parameter():
     PRIDE("MlpPolicy", "Pendulum-v1", synthetic_ratio=1.0, synthetic_on_top=False)  # every row synthetic: in place
 
 
-def test_a_model_saved_by_version_0_1_0_loads_with_its_generator_and_teacher():
-    """``tests/data/pride_0.1.0.zip`` was saved by version 0.1.0 (flat generator settings, its diffusion weights under
-    "diffusion", teacher="mistake"): its settings move into generator_kwargs, its weights into the generator, and the
-    scripted teacher goes on with its random state."""
-    from pathlib import Path
-
-    data = Path(__file__).parent / "data"
-    model = PRIDE.load(data / "pride_0.1.0.zip", env=gym.make("Pendulum-v1"))
-    assert model.generator_kwargs["width"] == 16 and model.generator_kwargs["window"] is None
-    assert model.generator.diffusion_options["n_blocks"] == 1 and not hasattr(model, "diffusion_width")
-    assert model.generator.diffusion is not None and model.model_terminals is False
-    teacher = model.feedback.resolve(model.teacher, model.seed)
-    np.testing.assert_array_equal(teacher.rng.random(3), np.load(data / "pride_0.1.0_next_draws.npy"))
-    # saved before PRIDE's label schedule and reward learning defaults: it keeps PEBBLE's, as it was trained
-    assert model.feedback_schedule == "constant" and model.reward_learner.consistency is None
-    model.learn(100, reset_num_timesteps=False)
-
-
-def test_a_model_saved_with_synthetic_consistency_loads_with_a_warning(tiny_kwargs, tmp_path):
-    model = PRIDE("MlpPolicy", "Pendulum-v1", **tiny_kwargs)
-    model.synthetic_consistency = 0.5  # what a development version of 0.2.0 saved
-    model.save(tmp_path / "model")
-    with pytest.warns(UserWarning, match="synthetic_consistency, which PRIDE no longer offers"):
-        loaded = PRIDE.load(tmp_path / "model")
-    assert not hasattr(loaded, "synthetic_consistency")
-
-
 def test_generator_settings_as_keywords_of_their_own_are_pointed_to_generator_kwargs():
-    with pytest.raises(ValueError, match=r"diffusion_width -> generator_kwargs=\{'width': \.\.\.\}"):
+    with pytest.raises(TypeError, match=r"diffusion_width is now generator_kwargs=\{'width': \.\.\.\}"):
         PRIDE("MlpPolicy", "Pendulum-v1", diffusion_width=64)
     for bad in (dict(seed=1), dict(device="cpu")):
         with pytest.raises(ValueError, match="seed and device are PRIDE's"):

@@ -25,11 +25,12 @@ from sb3_pride.common.teachers import InteractiveTeacher, Teacher
 from sb3_pride.common.utils import seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
-from sb3_pride.pebble.migration import STRUCTURED_SETTINGS, migrate_parameters, migrate_saved_model
+from sb3_pride.pebble.earlier_versions import renamed_settings_error
 from sb3_pride.pebble.settings import (
+    STRUCTURED_SETTINGS,
     check_feedback_settings,
-    load_kwargs,
     check_sac_arguments,
+    load_kwargs,
     preference_settings,
 )
 
@@ -134,15 +135,15 @@ class PEBBLE(AtomicSaves, SAC):
         query_kwargs: dict[str, Any] | None = None,
         pretraining_kwargs: dict[str, Any] | None = None,
         _init_setup_model: bool = True,
-        **renamed_settings: Any,
+        **unexpected: Any,
     ):
+        if unexpected:  # a name of 0.1 or 0.2: the error names its new place
+            raise renamed_settings_error(type(self).__name__, unexpected)
         check_feedback_settings(
             max_feedback, feedback_interval, queries_per_session, feedback_schedule, unsupervised_steps, asynchronous_feedback
         )
         check_sac_arguments(n_steps, gradient_steps, replay_buffer_class, self.buffer_class)
-        settings = preference_settings(
-            renamed_settings, segment_length, query_selection, reward_kwargs, query_kwargs, pretraining_kwargs
-        )
+        settings = preference_settings(segment_length, query_selection, reward_kwargs, query_kwargs, pretraining_kwargs)
         # resolved before the env is made: a teacher that renders (a person's) may set up headless rendering first
         self.feedback = FeedbackLoop(JournalBook(None, ()))
         self.feedback.resolve(teacher, seed)
@@ -182,11 +183,10 @@ class PEBBLE(AtomicSaves, SAC):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        migrate_saved_model(self.__dict__)  # a model saved by 0.1.0 or 0.2.0
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's selection and the history go on
-        carried = self.__dict__.pop("migrated_label_selection", getattr(previous, "label_selection", None))
+        carried = getattr(previous, "label_selection", None)
         self.reward_learner = RewardLearner(obs_dim, action_dim, self.segment_length, device=self.device, **self.reward_kwargs)
         self.reward_learner.history = self.feedback.reward_history = list(getattr(previous, "history", []))
         if carried is not None and self.reward_learner.label_selection is not None:
@@ -197,9 +197,8 @@ class PEBBLE(AtomicSaves, SAC):
         if getattr(self, "preferences", None) is None:  # a loaded model has its own, its priors included
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
         header = journal_header(env_id(self.env), self.observation_space.shape, self.action_space.shape, self.segment_length)
-        included = self.__dict__.pop("migrated_journal_entries", self.feedback.journal.included)
+        included = self.feedback.journal.included
         self.feedback.open_journal(self.preference_journal, header, included, self.preferences, self.prior_preferences)
-        self.feedback.named_teacher = self.__dict__.pop("migrated_named_teacher", self.feedback.named_teacher)
         self.replay_rewards = ReplayRewards(self.reward_learner, self.state_entropy)
         self.replay_rewards.update(self.num_timesteps, self.in_pretraining, learned=len(self.preferences) > 0)
         self.real_buffer.reward_source = self.replay_rewards
@@ -223,9 +222,6 @@ class PEBBLE(AtomicSaves, SAC):
         if env is not None and model.env is not None:
             check_env(model.env, model.segment_length, model.verbose)
         return model
-
-    def set_parameters(self, load_path_or_dict, exact_match: bool = True, device="auto") -> None:  # type: ignore[override]
-        super().set_parameters(migrate_parameters(load_path_or_dict), exact_match, device)
 
     @property
     def real_buffer(self) -> PreferenceReplayBuffer:

@@ -15,19 +15,16 @@ from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import RewardLearner
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option
 from sb3_pride.pebble.feedback import FeedbackSchedule
-from sb3_pride.pebble.migration import (
-    RENAMED_PEBBLE_SETTINGS,
-    STRUCTURED_SETTINGS,
-    migrate_saved_model,
-    move_renamed_settings,
-)
+from sb3_pride.pebble.earlier_versions import RENAMED_PEBBLE_SETTINGS, refuse_earlier_versions, renamed_settings_error
+
+#: PEBBLE's structured settings
+STRUCTURED_SETTINGS = ("reward_kwargs", "query_kwargs", "pretraining_kwargs")
 
 #: ``pretraining_kwargs``: k of the k-NN state entropy (PEBBLE: 5), gradient steps on r̂ after the critic reset (100)
 PRETRAINING_DEFAULTS = {"entropy_k": 5, "critic_reset_updates": 100}
 
 
 def preference_settings(
-    renamed: dict[str, Any],
     segment_length: int,
     query_selection: str,
     reward_kwargs: dict[str, Any] | None,
@@ -35,13 +32,14 @@ def preference_settings(
     pretraining_kwargs: dict[str, Any] | None,
 ) -> dict[str, dict[str, Any]]:
     """
-    ``reward_kwargs``, ``query_kwargs`` and ``pretraining_kwargs`` as the model keeps them, checked (the latter with
-    its defaults filled in), the flat settings of earlier versions in ``renamed`` moved into them with a
-    ``DeprecationWarning``.
+    ``reward_kwargs``, ``query_kwargs`` and ``pretraining_kwargs`` as the model keeps them (copies), checked (the
+    latter with its defaults filled in).
     """
-    structured = move_renamed_settings(
-        renamed, dict(reward_kwargs=reward_kwargs, query_kwargs=query_kwargs, pretraining_kwargs=pretraining_kwargs)
-    )
+    given = dict(reward_kwargs=reward_kwargs, query_kwargs=query_kwargs, pretraining_kwargs=pretraining_kwargs)
+    for name, value in given.items():
+        if value is not None and not isinstance(value, dict):
+            raise ValueError(f"{name} must be a dict of settings or None, got {value!r}")
+    structured = {name: dict(value or {}) for name, value in given.items()}
     QuerySampler.from_settings(segment_length, query_selection, structured["query_kwargs"])
     RewardLearner.check_kwargs(structured["reward_kwargs"], segment_length)
     unknown = sorted(set(structured["pretraining_kwargs"]) - set(PRETRAINING_DEFAULTS))
@@ -94,12 +92,17 @@ def load_kwargs(path: Any, kwargs: dict[str, Any], device: Any, custom_objects: 
     """
     ``load()``'s keyword arguments: the run's ``preference_journal`` found wherever the model is loaded from
     (``find_journal``: from the working folder, else from the model file's folder up, else beside it) unless given,
-    and the structured settings given merged into the saved ones (``loaded_settings``).
+    and the structured settings given merged into the saved ones (``loaded_settings``). A model saved by 0.1 or 0.2
+    is refused (``refuse_earlier_versions``), and so is a name of theirs.
     """
+    refuse_earlier_versions(path)
+    renamed = {name: kwargs[name] for name in kwargs if name in RENAMED_PEBBLE_SETTINGS}
+    if renamed:
+        raise renamed_settings_error("load()", renamed)
     journal = None if "preference_journal" in kwargs else saved_journal(path)
     if journal is not None:
         kwargs = {**kwargs, "preference_journal": find_journal(journal, path)}
-    if set(kwargs) & {*STRUCTURED_SETTINGS, *RENAMED_PEBBLE_SETTINGS}:
+    if set(kwargs) & set(STRUCTURED_SETTINGS):
         saved, _, _ = load_from_zip_file(path, device=device, custom_objects=custom_objects)
         kwargs = loaded_settings(path, saved or {}, kwargs)
     return kwargs
@@ -108,23 +111,17 @@ def load_kwargs(path: Any, kwargs: dict[str, Any], device: Any, custom_objects: 
 def loaded_settings(path: Any, saved: dict[str, Any], kwargs: dict[str, Any]) -> dict[str, Any]:
     """
     ``load()``'s keyword arguments with each structured setting given (``reward_kwargs``, ...) merged into the saved
-    one entry by entry, and the flat names of earlier versions moved into them (with a ``DeprecationWarning``).
-    REED's ``dynamics_consistency`` may change its settings but not be turned on or off (its heads are saved with the
-    model) nor change its optimizer (whose state is saved too).
+    one entry by entry. REED's ``dynamics_consistency`` may change its settings but not be turned on or off (its heads
+    are saved with the model) nor change its optimizer (whose state is saved too).
 
     :param saved: the saved model's attributes (``load_from_zip_file``'s data)
     """
-    flat = [name for name in saved if name in RENAMED_PEBBLE_SETTINGS]  # a model of 0.1.0 or 0.2.0
-    migrate_saved_model(saved)
-    renamed = {name: kwargs.pop(name) for name in list(kwargs) if name in RENAMED_PEBBLE_SETTINGS}
-    given = move_renamed_settings(renamed, {name: kwargs.pop(name, None) for name in STRUCTURED_SETTINGS})
     for name in STRUCTURED_SETTINGS:
-        if given[name]:
-            kwargs[name] = {**(saved.get(name) or {}), **given[name]}
-    for old in flat:  # SB3 restores the saved flat value before the migration reads it: give it the merged one
-        setting, key = RENAMED_PEBBLE_SETTINGS[old]
-        if key in given[setting]:
-            kwargs[old] = kwargs[setting][key]
+        given = kwargs.pop(name, None)
+        if given is not None and not isinstance(given, dict):
+            raise ValueError(f"{name} must be a dict of settings or None, got {given!r}")
+        if given:
+            kwargs[name] = {**(saved.get(name) or {}), **given}
     was, now = (
         make_option("dynamics_consistency", settings.get("dynamics_consistency", False), DynamicsConsistency)
         for settings in (saved.get("reward_kwargs") or {}, kwargs.get("reward_kwargs", saved.get("reward_kwargs")) or {})

@@ -14,7 +14,6 @@ from sb3_pride.common.queries import chronological_rows
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints
 from sb3_pride.pebble.pebble import PEBBLE
 from sb3_pride.pride.callbacks import GeneratorCallback
-from sb3_pride.pebble.migration import migrate_generator_settings
 from sb3_pride.pride.recipes import check_generator_kwargs, check_synthetic_settings, with_reward_defaults
 
 
@@ -97,11 +96,9 @@ class PRIDE(PEBBLE):
         replay_buffer_kwargs = dict(pebble_kwargs.pop("replay_buffer_kwargs", None) or {})
         replay_buffer_kwargs.setdefault("synthetic_buffer_size", synthetic_buffer_size or synthetic_samples)
         replay_buffer_kwargs.setdefault("synthetic_ratio", synthetic_ratio)
-        # PRIDE's schedule and reward learning, except for SB3's load(): a model saved before they existed keeps PEBBLE's
-        if feedback_schedule is None:
-            feedback_schedule = "front_loaded" if _init_setup_model else "constant"
-        if _init_setup_model:
-            reward_kwargs = with_reward_defaults(reward_kwargs, pebble_kwargs)
+        # PRIDE's schedule and reward learning (SB3's load() then restores the saved ones)
+        feedback_schedule = "front_loaded" if feedback_schedule is None else feedback_schedule
+        reward_kwargs = with_reward_defaults(reward_kwargs)
         pebble_kwargs.update(max_feedback=max_feedback, feedback_schedule=feedback_schedule, reward_kwargs=reward_kwargs)
         super().__init__(policy, env, replay_buffer_kwargs=replay_buffer_kwargs, _init_setup_model=False, **pebble_kwargs)
         if _init_setup_model and self.env is not None:  # PEBBLE skipped it, as it does for load()
@@ -125,8 +122,6 @@ class PRIDE(PEBBLE):
             self._setup_model()
 
     def _setup_model(self) -> None:
-        # a model saved by 0.1.0 holds its generator's settings flat
-        self.generator_kwargs = {**migrate_generator_settings(self.__dict__), **self.generator_kwargs}
         super()._setup_model()
         obs_dim, action_dim = get_flattened_obs_dim(self.observation_space), get_action_dim(self.action_space)
         options = dict(seed=self.seed, device=self.device)

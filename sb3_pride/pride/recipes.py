@@ -15,25 +15,22 @@ import numpy as np
 
 from sb3_pride.pride.generator import TransitionGenerator
 from sb3_pride.common.utils import check_real, merge_kwargs
-from sb3_pride.pebble.migration import RENAMED_GENERATOR_SETTINGS, RENAMED_PEBBLE_SETTINGS
+from sb3_pride.pebble.earlier_versions import RENAMED_GENERATOR_SETTINGS, renamed_settings_error
 
 #: PRIDE()'s reward learning on top of PEBBLE's: REED's consistency pre-training (Metcalf et al., 2023), five passes over
 #: the stored transitions per feedback session (``reward_kwargs`` given to PRIDE() go on top of these)
 PRIDE_REWARD_DEFAULTS: dict[str, Any] = dict(dynamics_consistency=dict(epochs=5))
 
 
-def with_reward_defaults(reward_kwargs: Any, other_kwargs: dict[str, Any]) -> Any:
+def with_reward_defaults(reward_kwargs: Any) -> Any:
     """
     PRIDE's ``reward_kwargs``: a copy of ``PRIDE_REWARD_DEFAULTS`` with the given ones merged on top, entry by entry
-    (``{"dynamics_consistency": {"batch_size": 64}}`` keeps the five passes; ``True`` is REED's published settings).
-    An entry given as a flat keyword of an earlier version (``dynamics_consistency=...`` in ``other_kwargs``) wins as
-    well; anything but a dict or None is left for PEBBLE's check to refuse.
+    (``{"dynamics_consistency": {"batch_size": 64}}`` keeps the five passes; ``True`` is REED's published settings);
+    anything but a dict or None is left for PEBBLE's check to refuse.
     """
     if reward_kwargs is not None and not isinstance(reward_kwargs, dict):
         return reward_kwargs
-    flat = {RENAMED_PEBBLE_SETTINGS[name][1] for name in other_kwargs if name in RENAMED_PEBBLE_SETTINGS}
-    defaults = {key: copy.deepcopy(value) for key, value in PRIDE_REWARD_DEFAULTS.items() if key not in flat}
-    return merge_kwargs(defaults, reward_kwargs or {})
+    return merge_kwargs(copy.deepcopy(PRIDE_REWARD_DEFAULTS), reward_kwargs or {})
 
 
 #: the paper's PRIDE: PEBBLE's reward learning and label schedule, synthetic data from the first reward model on at
@@ -96,12 +93,11 @@ def check_generator_kwargs(generator_kwargs: Any, other_kwargs: dict[str, Any]) 
     """
     Fail at construction, not at the first retrain: ``generator_kwargs`` must be ``TransitionGenerator`` arguments
     other than the run's seed and device (PRIDE's), and no generator setting may come as a keyword of its own (as in
-    version 0.1.0: the error names its new place).
+    version 0.1: a ``TypeError`` names its new place).
     """
-    old = sorted(set(other_kwargs) & set(RENAMED_GENERATOR_SETTINGS))
+    old = {name: other_kwargs[name] for name in other_kwargs if name in RENAMED_GENERATOR_SETTINGS}
     if old:
-        hints = ", ".join(f"{name} -> generator_kwargs={{{RENAMED_GENERATOR_SETTINGS[name]!r}: ...}}" for name in old)
-        raise ValueError(f"PRIDE's generator settings are given in generator_kwargs: {hints}")
+        raise renamed_settings_error("PRIDE", old)
     if generator_kwargs is None:
         return
     if not isinstance(generator_kwargs, dict) or {"seed", "device"} & set(generator_kwargs):
