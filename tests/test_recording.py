@@ -239,6 +239,17 @@ def test_a_recording_wrapper_is_put_once_around_each_env_of_the_dummy_vec_env():
     assert np.isnan(model.replay_buffer.render_states[:60]).all()
 
 
+def test_envs_in_other_processes_are_refused_for_recording():
+    from stable_baselines3.common.vec_env import SubprocVecEnv
+
+    env = SubprocVecEnv([lambda: gym.make("Pendulum-v1", render_mode="rgb_array")], start_method="fork")
+    try:
+        with pytest.raises(ValueError, match="the model's env is a SubprocVecEnv: use a DummyVecEnv"):
+            PEBBLE("MlpPolicy", env, teacher=WebTeacher(port=0), segment_length=10)
+    finally:
+        env.close()
+
+
 @pytest.mark.parametrize(
     ("setting", "message"),
     [

@@ -14,7 +14,7 @@ An env with none of these is refused, naming the ``render_mode`` it needs.
 
 from typing import TYPE_CHECKING, Any
 
-from sb3_pride.common.render_states import enable_render_states, has_render_state_protocol
+from sb3_pride.common.render_states import RenderStates, enable_render_states, has_render_state_protocol
 from sb3_pride.human import render
 from sb3_pride.human.clips import Clips
 from sb3_pride.human.recording import FrameRecording, record_renders
@@ -44,9 +44,15 @@ def show(clips: Clips, env: "VecEnv", buffer: "PreferenceReplayBuffer", recordin
     :param recording: the ``FrameRecording`` settings (``episodes``, ``max_bytes``, ``parent``), for recorded frames
     :return: (the way: ``MUJOCO_STATES``, ``RENDER_STATES`` or ``RECORDED_FRAMES``; the env's id or class name)
     """
+    try:  # asked first: a SubprocVecEnv's worker dies of a get_attr that fails
+        wrapped = all(env.env_is_wrapped(RenderStates))
+    except AttributeError:  # an env-like object without env_is_wrapped: its get_attr tells
+        wrapped = True
     try:
-        env_id = env.get_attr("render_env_id")[0]
+        env_id = env.get_attr("render_env_id")[0] if wrapped else None
     except AttributeError:
+        env_id = None
+    if env_id is None:
         return _show_other(clips, env, buffer, recording)
     check_buffer(buffer, "simulator states")
     renderer = clips.use(env_id)
