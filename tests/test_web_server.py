@@ -41,10 +41,13 @@ def get(url: str, body: bytes | None = None) -> int:
         return error.code
 
 
-def exchange(port: int, data: bytes, timeout: float = 10.0) -> tuple[bytes, float]:
-    """Send ``data`` on a new connection; (everything the server answers until it closes, seconds it took)."""
+def exchange(port: int, data: bytes, timeout: float = 10.0, half_close: bool = False) -> tuple[bytes, float]:
+    """Send ``data`` on a new connection (then close its sending side, with ``half_close``); (everything the server
+    answers until it closes, seconds it took)."""
     with socket.create_connection(("127.0.0.1", port), timeout=timeout) as connection:
         connection.sendall(data)
+        if half_close:
+            connection.shutdown(socket.SHUT_WR)
         start, answer = time.monotonic(), b""
         while chunk := connection.recv(65536):
             answer += chunk
@@ -107,10 +110,12 @@ def still_open(connection: socket.socket) -> bool:
         return False
 
 
-def test_a_request_sent_byte_by_byte_is_dropped_at_its_deadline(attached):
+def test_a_request_sent_byte_by_byte_is_dropped_at_its_deadline(attached, caplog, capfd):
     """read_timeout bounds a whole connection, not each read: clients that send a byte every 0.2 s (each read well
-    within the timeout) are dropped read_timeout seconds after they connected, and the server goes on."""
-    teacher = attached(read_timeout=1.0)
+    within the timeout) are dropped read_timeout seconds after they connected, what they sent is neither answered nor
+    logged (it is not a request), and the server goes on."""
+    teacher = attached(read_timeout=1.0, annotators=["ana"])  # a request without a token would be logged (401)
+    capfd.readouterr()
     connections = [socket.create_connection(("127.0.0.1", teacher.port), timeout=5) for _ in range(5)]
     start, closed = time.monotonic(), {}
     try:
@@ -131,7 +136,22 @@ def test_a_request_sent_byte_by_byte_is_dropped_at_its_deadline(attached):
         for connection in connections:
             connection.close()
     assert len(closed) == len(connections) and all(0.8 < took < 2.0 for took in closed.values()), closed
-    assert get(teacher.url + "api/state") == 200
+    time.sleep(0.2)  # the server's threads would log after they answered
+    assert "X-Slow" not in caplog.text and "GET /api/state" not in caplog.text + "".join(capfd.readouterr())
+    assert get(teacher.url + "api/state") == 401  # the server goes on
+
+
+def test_a_request_whose_head_never_ends_is_not_answered(attached, caplog, capfd):
+    """A client that stops half-way through the head of its request and closes its side: what it sent is not a
+    request (no blank line ended its head), so nothing is answered, run or logged."""
+    teacher = attached(annotators=["ana"])
+    capfd.readouterr()
+    with caplog.at_level("INFO", logger="werkzeug"):
+        for cut in (b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Cut: aa", b"GET /api/state HTTP/1.1\r\nHost: 1"):
+            answer, _ = exchange(teacher.port, cut, half_close=True)
+            assert answer == b"", answer[:40]
+        time.sleep(0.2)
+    assert "GET /api/state" not in caplog.text + "".join(capfd.readouterr())
 
 
 def handler_threads() -> list[threading.Thread]:

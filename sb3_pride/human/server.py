@@ -17,6 +17,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from functools import cached_property
+from http.server import BaseHTTPRequestHandler
 from typing import TYPE_CHECKING, Any
 
 from sb3_pride.human.app import MAX_BODY, create_app
@@ -62,6 +63,7 @@ class Connections:
     def __init__(self, limit: int = MAX_CONNECTIONS, deadline: float = READ_TIMEOUT):
         self.limit, self.deadline = limit, deadline
         self._open: dict[socket.socket, float] = {}  # in the order they were accepted
+        self._shut_down: set[socket.socket] = set()  # closed by this class, their threads not yet over
         self._lock = threading.Lock()
 
     def __len__(self) -> int:
@@ -81,10 +83,15 @@ class Connections:
             for connection in [c for c, since in self._open.items() if now - since > self.deadline]:
                 self._shut(connection)
 
+    def was_shut(self, connection: socket.socket) -> bool:
+        """Whether ``connection`` was closed here (its deadline, or the limit): what it sent is not a request."""
+        return connection in self._shut_down
+
     def release(self, connection: socket.socket, close: Callable[[], None]) -> None:
         """``close()`` the ``connection`` whose request is over (no shutdown of this class races it), and forget it."""
         with self._lock:
             self._open.pop(connection, None)
+            self._shut_down.discard(connection)
             close()
 
     def close_all(self) -> None:
@@ -95,6 +102,7 @@ class Connections:
 
     def _shut(self, connection: socket.socket) -> None:
         del self._open[connection]
+        self._shut_down.add(connection)
         try:
             connection.shutdown(socket.SHUT_RDWR)
         except OSError:  # closed by the client already
@@ -121,6 +129,8 @@ class RequestInput:
         self.answered = False
         #: bytes that may still be read once ``answered``
         self.leftover = 0
+        #: the last line read was a blank one (a request's head ends with it; a connection closed before has none)
+        self.blank_line = False
 
     def _body(self) -> None:
         if self.expect_continue:
@@ -148,55 +158,89 @@ class RequestInput:
         if self.answered:
             return b""
         self._body()
-        return self._stream.readline(size)
+        line = self._stream.readline(size)
+        self.blank_line = line in (b"\r\n", b"\n")
+        return line
 
     def __getattr__(self, name: str) -> Any:  # close, closed, ...: the stream's own
         return getattr(self._stream, name)
 
 
+class GuardedRequests(BaseHTTPRequestHandler):
+    """
+    What ``quiet_request_handler`` adds to werkzeug's request handler (put before it): its input read through
+    ``RequestInput`` (no body read past a refusal, ``Expect: 100-continue`` answered when the app reads the body), a
+    request whose head was cut short refused unanswered (the connection closed before the blank line that ends it:
+    http.server would take what came as the whole head), and no console line for a request under 400.
+    """
+
+    rfile: Any
+    server: Any
+
+    def setup(self) -> None:
+        super().setup()
+        self.rfile = RequestInput(self.rfile, self._send_continue)
+
+    def _send_continue(self) -> None:
+        self.wfile.write(b"HTTP/1.1 100 Continue\r\n\r\n")
+        self.wfile.flush()
+
+    def handle_expect_100(self) -> bool:  # http.server would answer it before the app has seen the request
+        return True
+
+    def parse_request(self) -> bool:
+        if not super().parse_request():
+            return False
+        if not self.rfile.blank_line:  # cut short: not a request
+            self.close_connection = True
+            return False
+        return True
+
+    def read_body_through_input(self) -> None:
+        """Before the app runs: what ``RequestInput`` needs of the request's head."""
+        body = self.rfile
+        body.expect_continue = self.headers.get("Expect", "").lower().strip(" \t") == "100-continue"
+        del self.headers["Expect"]  # werkzeug would answer it too
+        length = self.headers.get("Content-Length", "").strip()
+        chunked = "chunked" in self.headers.get("Transfer-Encoding", "").lower()
+        body.leftover = int(length) if length.isdigit() and int(length) <= MAX_BODY and not chunked else 0
+
+    def shut_by_server(self) -> bool:
+        """Whether the server closed this connection (its ``connections``): what came is not a request."""
+        connections = getattr(self.server, "connections", None)
+        return connections is not None and connections.was_shut(self.connection)
+
+    def send_response(self, code: int, message: str | None = None) -> None:
+        self.rfile.answered = True
+        super().send_response(code, message)
+
+    def log_request(self, code: Any = "-", size: Any = "-") -> None:
+        if isinstance(code, int) and code < 400:  # an HTTPStatus is an int
+            return
+        super().log_request(code, size)
+
+
 def quiet_request_handler(read_timeout: float = READ_TIMEOUT) -> type:
     """
-    werkzeug's request handler without a console line per request (the page polls every second), tokens masked in
-    the lines it does print (``mask_tokens``, with the server's ``tokens``), ``read_timeout`` seconds for each read or
-    write of a connection, and its input read through ``RequestInput``: no body is read past a refusal.
+    werkzeug's request handler with ``GuardedRequests``, tokens masked in the lines it prints (``mask_tokens``, with
+    the server's ``tokens``), ``read_timeout`` seconds for each read or write of a connection, and nothing answered
+    or logged on a connection the server closed (its deadline, or the limit on open connections).
     """
     from werkzeug.serving import WSGIRequestHandler
 
-    class QuietRequestHandler(WSGIRequestHandler):
+    class QuietRequestHandler(GuardedRequests, WSGIRequestHandler):
         timeout = read_timeout  # socketserver sets it on the connection before the request is read
 
-        def setup(self) -> None:
-            super().setup()
-            self.rfile = RequestInput(self.rfile, self._send_continue)  # type: ignore[assignment]
-
-        def _send_continue(self) -> None:
-            self.wfile.write(b"HTTP/1.1 100 Continue\r\n\r\n")
-            self.wfile.flush()
-
-        def handle_expect_100(self) -> bool:  # http.server would answer it before the app has seen the request
-            return True
-
         def run_wsgi(self) -> None:
-            body = self.rfile
-            assert isinstance(body, RequestInput)
-            body.expect_continue = self.headers.get("Expect", "").lower().strip(" \t") == "100-continue"
-            del self.headers["Expect"]  # werkzeug would answer it too
-            length = self.headers.get("Content-Length", "").strip()
-            chunked = "chunked" in self.headers.get("Transfer-Encoding", "").lower()
-            body.leftover = int(length) if length.isdigit() and int(length) <= MAX_BODY and not chunked else 0
+            if self.shut_by_server():
+                self.close_connection = True
+                return
+            self.read_body_through_input()
             super().run_wsgi()
 
-        def send_response(self, code: int, message: str | None = None) -> None:
-            if isinstance(self.rfile, RequestInput):
-                self.rfile.answered = True
-            super().send_response(code, message)
-
-        def log_request(self, code: Any = "-", size: Any = "-") -> None:
-            if isinstance(code, int) and code < 400:  # an HTTPStatus is an int
-                return
-            super().log_request(code, size)
-
         def log(self, type: str, message: str, *args: Any) -> None:  # every line (errors too), masked as a whole
+            if self.shut_by_server():
+                return
             line = message % args if args else message
             super().log(type, "%s", mask_tokens(line, getattr(self.server, "tokens", ())))
 
@@ -215,6 +259,8 @@ def guarded_server(host: str, port: int, app: Any, handler: type, connections: C
 
     class GuardedServer(ThreadedWSGIServer):
         block_on_close = False  # stop() waits for no connection's thread: each is shut down
+        tokens: tuple[str, ...] = ()  # masked in the console's lines
+        connections: Connections  # read by the request handler
 
         def verify_request(self, request: Any, client_address: Any) -> bool:
             connections.admit(request)
@@ -231,7 +277,7 @@ def guarded_server(host: str, port: int, app: Any, handler: type, connections: C
             connections.close_all()
 
     server = GuardedServer(host, port, app, handler=handler)
-    server.tokens = tuple(tokens)
+    server.tokens, server.connections = tuple(tokens), connections
     return server
 
 

@@ -127,8 +127,8 @@ class WebTeacher(InteractiveTeacher):
     :param report_path: a JSON file that receives ``agreement()`` (written whole) after every feedback session and on
         ``close()`` (its folder is made now; a failed write is warned about, never raised); None: none
     :param seed: the seed of the draws that mix the known-answer questions in
-    :param read_timeout: seconds each read or write of a connection may take: a request sent half-way (or an answer
-        never read) is dropped then, and the server's thread freed
+    :param read_timeout: seconds a connection may stay open, its request received and its answer sent, however slowly
+        the bytes come: a request sent half-way or slowly (or an answer never read) is dropped then, its thread freed
     :param hand_over_after: seconds a query may stay shown to an annotator who does not answer it (while their page
         still polls) before an annotator who has nothing left to answer is handed it
     :param recorded_episodes: for an env shown from recorded frames, the episodes kept (over all envs, the running ones
@@ -224,6 +224,7 @@ class WebTeacher(InteractiveTeacher):
         )
         self.store = AnswerStore(self.quality, self.annotators, self.answers_per_query, self.hand_over_after)
         self.clips = Clips(self.clip_dir, self.width, self.height, self.camera)
+        self.quality.clips = self.clips  # known-answer questions' copies of clips are made there
         self.server = WebServer(self.store, self.clips, self.annotators, lambda: self.page_instructions, self.read_timeout)
 
     @property
