@@ -351,6 +351,20 @@ def two_annotators(port: int, tokens: dict[str, str], lines: "queue.Queue[dict]"
     return rows
 
 
+def code_version() -> str:
+    """The package's version and the git commit of the code the probe ran (with a note if ``sb3_pride/`` has changes)."""
+    import sb3_pride
+
+    root = Path(sb3_pride.__file__).resolve().parent.parent
+    try:
+        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
+        changed = subprocess.run(["git", "status", "--porcelain", "sb3_pride"], cwd=root, capture_output=True, text=True)
+        dirty = " with uncommitted changes in sb3_pride/" if changed.stdout.strip() else ""
+        return f"sb3_pride {sb3_pride.__version__}, commit {commit.stdout.strip()}{dirty}"
+    except (OSError, subprocess.CalledProcessError):
+        return f"sb3_pride {sb3_pride.__version__} (not a git checkout)"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--dripping", type=int, default=50, help="slow sockets timed to their close")
@@ -388,7 +402,7 @@ def main() -> None:
             f"    {command}",
             "",
             f"`WebTeacher` in a child process on {HOST} (two annotators, known-answer rate 0.5, read_timeout "
-            f"{args.read_timeout:g} s); the probe is its clients.",
+            f"{args.read_timeout:g} s); the probe is its clients. Code: {code_version()}.",
             "",
             "## Two annotators comparing notes",
             "",
