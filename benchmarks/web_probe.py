@@ -202,17 +202,26 @@ def deadline(port: int, args: argparse.Namespace) -> list[str]:
 
 
 def flood(pid: int, port: int, token: str, args: argparse.Namespace) -> list[str]:
-    """``--slow`` sockets dripping a request, re-opened as the server closes them, for ``--attack`` seconds; a page
-    polling its state meanwhile."""
+    """``--slow`` sockets dripping a request, re-opened as the server closes them, kept up for ``--attack`` seconds once
+    all are open; a page polling its state and the child's threads and descriptors read all along."""
     opened: list[socket.socket] = []
     answers: list[tuple[int, float]] = []
     stop = threading.Event()
+    before = settled(pid, 1.0)
+    peak = dict(before)
 
     def page() -> None:
         while not stop.is_set():
             status, _, _, took = request(port, "/api/state", token)
             answers.append((status, took))
             time.sleep(0.5)
+
+    def sample() -> None:
+        while not stop.is_set():
+            now = proc(pid)
+            for key in peak:
+                peak[key] = max(peak[key], now[key])
+            time.sleep(0.1)
 
     def connect() -> None:
         try:
@@ -223,14 +232,14 @@ def flood(pid: int, port: int, token: str, args: argparse.Namespace) -> list[str
         except OSError:
             pass
 
-    before = settled(pid, 1.0)
-    peak = dict(before)
+    watchers = [threading.Thread(target=page, daemon=True), threading.Thread(target=sample, daemon=True)]
+    for watcher in watchers:
+        watcher.start()
     start = time.monotonic()
     for _ in range(args.slow):
         connect()
-    poller = threading.Thread(target=page, daemon=True)
-    poller.start()
-    reopened, last_drip = 0, 0.0
+    connected = time.monotonic() - start
+    reopened, last_drip, start = 0, 0.0, time.monotonic()
     while time.monotonic() - start < args.attack:
         drip = time.monotonic() - last_drip >= args.drip
         last_drip = time.monotonic() if drip else last_drip
@@ -251,19 +260,18 @@ def flood(pid: int, port: int, token: str, args: argparse.Namespace) -> list[str
                 connection.close()
                 connect()
                 reopened += 1
-        now = proc(pid)
-        peak = {key: max(peak[key], now[key]) for key in peak}
         time.sleep(0.1)
     stop.set()
-    poller.join()
+    for watcher in watchers:
+        watcher.join()
     for connection in opened:
         connection.close()
     time.sleep(args.read_timeout + 1)
     after = proc(pid)
     ok = [took for status, took in answers if status == 200]
     return [
-        f"| sockets kept open by the probe for {args.attack:g} s | {args.slow} (a byte every {args.drip:g} s, "
-        f"re-opened when closed: {reopened} times) |",
+        f"| sockets opened by the probe (in {connected:.1f} s), then kept open for {args.attack:g} s | {args.slow} (a "
+        f"byte every {args.drip:g} s, re-opened when closed: {reopened} times) |",
         f"| child threads: before / peak / after | {before['threads']} / {peak['threads']} / {after['threads']} |",
         f"| child file descriptors: before / peak / after | {before['fds']} / {peak['fds']} / {after['fds']} |",
         f"| a page's requests (every 0.5 s) answered meanwhile | {len(ok)} of {len(answers)}"
