@@ -9,8 +9,8 @@ clients, and reads the child's threads, file descriptors and memory from ``/proc
 - slow clients: ``--dripping`` sockets that send a request one header byte every ``--drip`` seconds, timed to when
   the server closes them; then ``--slow`` such sockets, each re-opened when the server closes it, for ``--attack``
   seconds: the child's peak threads and descriptors, and how a page's requests fared meanwhile (answered, how fast);
-- refused bodies: ``--bodies`` POSTs without a token, each announcing 200 MB and sending up to 8 MB; the bytes the
-  server let through, the child's memory before and after (after a garbage collection too) and its epoll descriptors;
+- refused bodies: ``--bodies`` POSTs without a token, each announcing 200 MB and sending up to 8 MB, then left open;
+  the bytes the server let through, the child's memory, epoll and other file descriptors before and after;
 - two annotators: two feedback sessions; every clip either of them is shown is fetched and hashed, and after one
   answers a question the other answers it too: the statuses and messages seen for known-answer questions and for the
   model's queries, and the questions whose clip bytes (or sizes) are another question's;
@@ -280,35 +280,40 @@ def flood(pid: int, port: int, token: str, args: argparse.Namespace) -> list[str
 
 
 def refused_bodies(pid: int, port: int, args: argparse.Namespace) -> list[str]:
-    """``--bodies`` POSTs without a token announcing 200 MB and sending up to 8 MB each."""
+    """``--bodies`` POSTs without a token announcing 200 MB and sending up to 8 MB each, their connections then left
+    open (the client neither sends more nor closes) past the server's read_timeout."""
     head = (
         b"POST /api/answer HTTP/1.1\r\nHost: 127.0.0.1\r\nContent-Type: application/json\r\nContent-Length: 200000000\r\n\r\n"
     )
-    chunk, let_through, answered = b"x" * 65536, [], 0
+    chunk, let_through, answered, held = b"x" * 65536, [], 0, []
     before = settled(pid)
     for _ in range(args.bodies):
-        with socket.create_connection((HOST, port), timeout=5) as connection:
-            connection.sendall(head)
-            sent = 0
-            try:
-                while sent < 8 * 2**20:
-                    connection.sendall(chunk)
-                    sent += len(chunk)
-            except OSError:
-                pass
-            let_through.append(sent / 2**20)
-            try:
-                answered += connection.recv(65536).startswith(b"HTTP/1.1 401")
-            except OSError:
-                pass
+        connection = socket.create_connection((HOST, port), timeout=5)
+        held.append(connection)
+        connection.sendall(head)
+        sent = 0
+        try:
+            while sent < 8 * 2**20:
+                connection.sendall(chunk)
+                sent += len(chunk)
+        except OSError:
+            pass
+        let_through.append(sent / 2**20)
+        try:
+            answered += connection.recv(65536).startswith(b"HTTP/1.1 401")
+        except OSError:
+            pass
+    time.sleep(args.read_timeout + 1)
     after = settled(pid)
+    for connection in held:
+        connection.close()
     return [
         f"| POSTs without a token, each announcing 200 MB | {args.bodies} |",
         f"| MB of body each could send before the server closed it | {', '.join(f'{mb:.1f}' for mb in let_through)} |",
         f"| answered 401 before the close | {answered} of {args.bodies} |",
-        f"| child memory (RSS, MB): before / after | {before['rss_mb']} / {after['rss_mb']} |",
-        f"| child epoll descriptors: before / after | {before['epoll']} / {after['epoll']} |",
-        f"| child file descriptors: before / after | {before['fds']} / {after['fds']} |",
+        f"| child memory (RSS, MB): before / {args.read_timeout + 1:g} s later | {before['rss_mb']} / {after['rss_mb']} |",
+        f"| child epoll descriptors: before / {args.read_timeout + 1:g} s later | {before['epoll']} / {after['epoll']} |",
+        f"| child file descriptors: before / {args.read_timeout + 1:g} s later | {before['fds']} / {after['fds']} |",
     ]
 
 
