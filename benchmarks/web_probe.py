@@ -88,6 +88,8 @@ def serve(args: argparse.Namespace) -> None:
         port=0, annotators=list(ANNOTATORS), known_answer_rate=0.5, seed=0, read_timeout=args.read_timeout, clip_dir=folder
     )
     teacher.clips.renderer = PaintedRenderer()
+    if args.max_connections is not None:
+        teacher.server.max_connections = args.max_connections
     teacher.port = teacher.server.start(HOST, 0)
     over = teacher.quality.session_over
 
@@ -388,6 +390,7 @@ def main() -> None:
     parser.add_argument("--pairs", type=int, default=12, help="pairs per feedback session")
     parser.add_argument("--segment-length", type=int, default=25, help="steps per segment (frames per clip)")
     parser.add_argument("--read-timeout", type=float, default=5.0, help="the server's read_timeout")
+    parser.add_argument("--max-connections", type=int, help="the server's limit on open connections (its default)")
     parser.add_argument("--out", type=Path, help="write the report there too")
     parser.add_argument("--serve", action="store_true", help=argparse.SUPPRESS)  # the child
     args = parser.parse_args()

@@ -4,8 +4,11 @@ else of HTTP is tested through the app's test client."""
 
 import select
 import socket
+import subprocess
+import sys
 import threading
 import time
+from pathlib import Path
 import urllib.error
 import urllib.request
 
@@ -210,3 +213,30 @@ def test_a_refused_body_is_not_read(attached):
     assert get(teacher.url + "api/answer", b'{"id": "x", "label": 1}') == 401
     token = teacher.links["ana"].split("token=")[1]
     assert get(teacher.url + f"api/answer?token={token}", b'{"id": "x"}') == 400
+
+
+def test_the_probe_reads_that_the_server_keeps_its_limits():
+    """benchmarks/web_probe.py, small: two annotators comparing notes see known-answer questions and queries alike, the
+    page refuses framing, refused bodies are not read, slow sockets are dropped at their deadline and the connections'
+    threads stay within the limit."""
+    probe = Path(__file__).resolve().parent.parent / "benchmarks" / "web_probe.py"
+    settings = (
+        "--dripping 5 --slow 40 --max-connections 10 --attack 1 --bodies 3 --pairs 6 --segment-length 4 --read-timeout 1"
+    )
+    done = subprocess.run([sys.executable, str(probe), *settings.split()], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = {}
+    for line in done.stdout.splitlines():
+        if line.startswith("| ") and not line.startswith("| |"):
+            cells = [cell.strip() for cell in line.strip("|").split("|")]
+            rows[cells[0]] = cells[1:]
+    known, queries = rows["known-answer questions"], rows["the model's queries"]
+    assert int(known[0]) > 0 and known[1] == queries[1] == "403 \"question '<id>' is not the one shown to you\""
+    assert known[2:] == queries[2:] == ["0", "0"]  # no clip's bytes or size shared between questions
+    assert rows["`GET /`"][1:] == ["DENY", "frame-ancestors 'none'"]
+    assert all(float(mb) < 8 for mb in rows["MB of body each could send before the server closed it"][0].split(","))
+    epoll = next(cells for name, cells in rows.items() if name.startswith("child epoll descriptors"))[0]
+    assert epoll.split(" / ")[1] == "0"
+    assert rows["closed by the server"][0].startswith("5 of 5")
+    before, peak, after = map(int, rows["child threads: before / peak / after"][0].split(" / "))
+    assert peak <= before + 10 + 5 and after == before
