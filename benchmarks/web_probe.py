@@ -367,17 +367,16 @@ def two_annotators(port: int, tokens: dict[str, str], lines: "queue.Queue[dict]"
 
 
 def code_version() -> str:
-    """The package's version and the git commit of the code the probe ran (with a note if ``sb3_pride/`` has changes)."""
+    """The package's version, and whether ``sb3_pride/`` differs from its git checkout's last commit."""
     import sb3_pride
 
     root = Path(sb3_pride.__file__).resolve().parent.parent
     try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True)
         changed = subprocess.run(["git", "status", "--porcelain", "sb3_pride"], cwd=root, capture_output=True, text=True)
-        dirty = " with uncommitted changes in sb3_pride/" if changed.stdout.strip() else ""
-        return f"sb3_pride {sb3_pride.__version__}, commit {commit.stdout.strip()}{dirty}"
-    except (OSError, subprocess.CalledProcessError):
-        return f"sb3_pride {sb3_pride.__version__} (not a git checkout)"
+    except OSError:
+        return f"sb3_pride {sb3_pride.__version__}"
+    state = " with uncommitted changes" if changed.stdout.strip() else " as committed"
+    return f"sb3_pride {sb3_pride.__version__}{state if changed.returncode == 0 else ''}"
 
 
 def main() -> None:
