@@ -152,7 +152,7 @@ def record(data: Path, checkpoints: list[int], seed: int, command: str) -> None:
                     if len(model.preferences)
                     else float("nan")
                 )
-                print(f"checkpoint {self.num_timesteps}: {model.feedback_labeled} labels so far", flush=True)
+                print(f"checkpoint {self.num_timesteps}: {model.phase.labeled} labels so far", flush=True)
             return True
 
     start = time.time()
@@ -178,7 +178,7 @@ def record(data: Path, checkpoints: list[int], seed: int, command: str) -> None:
         "kwargs": kwargs,
         "checkpoints": checkpoints,
         "pebble_reward_corr_at_checkpoints": corr,
-        "feedback_labeled": model.feedback_labeled,
+        "feedback_labeled": model.phase.labeled,
         "seconds": seconds,
         "version": provenance(),
         "system": system_info(),

@@ -355,8 +355,14 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         deterministic=True,
         verbose=0,
     )
+    callbacks: list[Any] = [evaluation]
+    if spec["algo"] != "sac":  # beside the run: SAC's critic on real rows, the steps made while answers were awaited
+        from diagnostics import AwaitingFeedback, CriticDiagnostics
+
+        awaiting = AwaitingFeedback()
+        callbacks += [CriticDiagnostics(seed=spec["seed"] + 1), awaiting]
     start = time.time()
-    model.learn(n_timesteps, callback=evaluation)
+    model.learn(n_timesteps, callback=callbacks)
     seconds = time.time() - start
     if hasattr(model, "save_reward_model"):
         model.save_reward_model(folder / "reward.pt")  # r̂ on its own, for an agent to learn from (learned_reward)
@@ -372,11 +378,11 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
         "final_return": float(returns[-1]),
         "best_return": float(returns.max()),
         "final_success": None if successes is None else float(successes[-1]),
-        "feedback_asked": getattr(model, "feedback_asked", None),
-        "feedback_labeled": getattr(model, "feedback_labeled", None),
+        "feedback_asked": model.phase.asked if hasattr(model, "phase") else None,
+        "feedback_labeled": model.phase.labeled if hasattr(model, "phase") else None,
     }
     if getattr(model, "asynchronous_feedback", False):
-        result["steps_awaiting_feedback"] = model.steps_awaiting_feedback
+        result["steps_awaiting_feedback"] = awaiting.steps
     (folder / "result.json").write_text(json.dumps(result, indent=2))
     settings["time"]["finished"] = utc_now()  # the run's end, beside its start
     (folder / "settings.json").write_text(json.dumps(settings, indent=2, default=str))

@@ -67,7 +67,7 @@ def main() -> None:
     mean, std = evaluate_policy(model, model.get_env(), n_eval_episodes=args.eval_episodes, deterministic=True)
     print(
         f"{args.algo} on {args.env}: {args.timesteps} steps in {time.time() - start:.0f} s, "
-        f"{model.feedback_labeled}/{model.feedback_asked} preferences labeled; "
+        f"{model.phase.labeled}/{model.phase.asked} preferences labeled; "
         f"true return of the final policy: {mean:.1f} ± {std:.1f} over {args.eval_episodes} episodes"
     )
 

@@ -44,22 +44,20 @@ def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, as
     )  # fmt: skip
     teacher.model = model
     model.learn(1000)
-    assert len(teacher.steps) == 3 and model.feedback_sessions == 3 and model.feedback.pending is None
+    assert len(teacher.steps) == 3 and model.phase.sessions == 3 and model.feedback.pending is None
     if asynchronous:
         # each session's answers took a second: the agent kept stepping meanwhile, on the older reward
         assert all(end > start for start, end in teacher.steps)
         assert teacher.threads == {"teacher"}
-        assert model.steps_awaiting_feedback > 0
         # the next session is published only once the previous one is answered
         assert all(teacher.steps[i][1] <= teacher.steps[i + 1][0] for i in range(2))
     else:
         assert all(end == start for start, end in teacher.steps) and teacher.threads == {"MainThread"}
-        assert model.steps_awaiting_feedback == 0
     # every answer used once: journaled once, in the preferences once, with the label the teacher gave
     entries = PreferenceJournal(journal).read()
-    assert len(entries) == model.feedback_asked == model.feedback.journal.included == 60
+    assert len(entries) == model.phase.asked == model.feedback.journal.included == 60
     assert len({entry.id for entry in entries}) == 60
-    assert len(model.preferences) == model.feedback_labeled == 60
+    assert len(model.preferences) == model.phase.labeled == 60
     stored = model.preferences.inputs[: len(model.preferences)]
     labels = model.preferences.labels[: len(model.preferences)]
     assert len({inputs.tobytes() for inputs in stored}) == 60
@@ -72,8 +70,8 @@ def test_a_session_open_when_learn_ends_is_waited_for(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, asynchronous_feedback=True, **tiny_kwargs)
     teacher.model = model
     model.learn(302)  # the first session is published at step 300
-    assert model.feedback_sessions == 1 and model.feedback_asked == 20 and model.feedback.pending is None
-    assert not model.in_pretraining and model.real_buffer.reward_source is model.replay_rewards
+    assert model.phase.sessions == 1 and model.phase.asked == 20 and model.feedback.pending is None
+    assert not model.phase.pretraining and model.real_buffer.reward_source is model.replay_rewards
     assert model.replay_rewards.learned and not model.replay_rewards.pretraining
 
 
@@ -87,7 +85,7 @@ def test_a_teachers_bad_answer_from_its_thread_is_raised_and_nothing_recorded(ti
     )
     with pytest.raises(ValueError, match="teacher labels"):
         model.learn(400)
-    assert len(model.preferences) == 0 and model.feedback_asked == 0 and not journal.exists()
+    assert len(model.preferences) == 0 and model.phase.asked == 0 and not journal.exists()
     assert model.feedback.pending is None
 
 
@@ -114,10 +112,10 @@ def test_a_checkpoint_taken_while_answers_are_awaited_loads_and_goes_on(tiny_kwa
     assert saver.saved
     loaded = PEBBLE.load(tmp_path / "open", env=model.get_env())
     # the open session was not saved: the loaded model asks it again at once (a journal would give its answers back)
-    assert loaded.asynchronous_feedback and loaded.feedback.pending is None and loaded.feedback_sessions == 0
-    assert loaded.next_feedback_step <= loaded.num_timesteps
+    assert loaded.asynchronous_feedback and loaded.feedback.pending is None and loaded.phase.sessions == 0
+    assert loaded.phase.next_step <= loaded.num_timesteps
     loaded.learn(400, reset_num_timesteps=False)
-    assert loaded.feedback_sessions >= 1 and loaded.feedback.pending is None
+    assert loaded.phase.sessions >= 1 and loaded.feedback.pending is None
 
 
 def test_bad_settings_name_the_parameter():
@@ -156,7 +154,7 @@ def test_an_interactive_teachers_log_and_journal_reach_the_model_from_its_thread
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(700, log_interval=1)
     entries = PreferenceJournal(journal).read()
-    assert model.feedback.journal.included == len(entries) == model.feedback_asked == 40
+    assert model.feedback.journal.included == len(entries) == model.phase.asked == 40
     assert {entry.annotator for entry in entries} == {"ana"}
     assert pd.read_csv(tmp_path / "progress.csv")["annotators/ana/answers"].dropna().tolist()[-1] == 20.0
 
@@ -169,11 +167,11 @@ def test_a_new_model_takes_an_interactive_teachers_journaled_answers_back(tiny_k
     kwargs = dict(seed=0, asynchronous_feedback=asynchronous, preference_journal=journal, **tiny_kwargs)
     first = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=LoggingTeacher(), **kwargs)
     first.learn(700)
-    assert first.feedback_sessions == 2 and len(PreferenceJournal(journal).read()) == 40
+    assert first.phase.sessions == 2 and len(PreferenceJournal(journal).read()) == 40
     teacher = LoggingTeacher()
     again = PEBBLE("MlpPolicy", "Pendulum-v1", teacher=teacher, **kwargs)
     again.learn(700)
-    assert teacher.asked == [] and again.feedback_asked == 40 and again.feedback.journal.included == 40
+    assert teacher.asked == [] and again.phase.asked == 40 and again.feedback.journal.included == 40
     assert len(PreferenceJournal(journal).read()) == 40
     again.learn(400, reset_num_timesteps=False)  # the third session is new: asked, journaled after the others
     assert teacher.asked == [20] and again.feedback.journal.included == len(PreferenceJournal(journal).read()) == 60

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import torch as th
 
 from sb3_pride.pebble.earlier_versions import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
 from sb3_pride.pebble.earlier_versions import RENAMED_PEBBLE_SETTINGS
@@ -1293,3 +1294,35 @@ def test_a_paced_teacher_takes_its_time_and_refuses_bad_settings(monkeypatch):
     with pytest.raises(ValueError, match="teacher must be a Teacher"):
         paced.PacedTeacher("oracle", 1.0)
     assert paced.PacedTeacher(oracle, 0.5).seconds_per_answer == 0.5
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("algo", ["pebble", "pride"])
+def test_critic_diagnostics_are_logged_after_pretraining_and_change_no_training_run(tiny_kwargs, algo, tmp_path, monkeypatch):
+    """benchmarks/diagnostics.py: train/critic_loss_real and train/q_real (the critic on real-only minibatches, so
+    PRIDE's mixed batches and PEBBLE's real ones compare like for like) and train/q, logged from the first feedback
+    session on, from the callback's own generators: a run that logs them trains exactly as one that does not."""
+    import pandas as pd
+    from stable_baselines3.common.logger import configure
+
+    from sb3_pride import PEBBLE, PRIDE
+    from tests.test_pride import TINY_DIFFUSION
+
+    monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))
+    diagnostics = load_script("diagnostics")
+    extra = TINY_DIFFUSION if algo == "pride" else {}
+
+    def run(callbacks, folder):
+        model = (PRIDE if algo == "pride" else PEBBLE)("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **extra)
+        model.set_logger(configure(str(folder), ["csv"]))
+        model.learn(600, callback=callbacks, log_interval=1)  # the first session at step 300
+        return th.nn.utils.parameters_to_vector(model.critic.parameters()).detach()
+
+    logged = run([diagnostics.CriticDiagnostics(interval=20, seed=1)], tmp_path / "on")
+    th.testing.assert_close(logged, run([], tmp_path / "off"), rtol=0, atol=0)
+    progress = pd.read_csv(tmp_path / "on" / "progress.csv")
+    for key in ("train/critic_loss_real", "train/q_real", "train/q"):
+        values = progress[[key, "time/total_timesteps"]].dropna()
+        assert len(values) >= 1 and np.all(np.isfinite(values[key]))
+        assert values["time/total_timesteps"].min() > 300  # never during pre-training, where r_int is the reward
+    assert (progress["train/critic_loss_real"].dropna() >= 0).all()

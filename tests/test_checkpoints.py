@@ -191,7 +191,7 @@ def test_sigkill_during_a_checkpoint_save_then_resume_from_the_newest_complete(t
     assert model.feedback.journal.included == 20 and len(model.preferences) == 20
     model.learn(400, callback=CheckpointCallback(150, tmp_path, save_replay_buffer=True), reset_num_timesteps=False)
     # feedback session 3 (step 400) came back from the journal; only those at 500 and 600 were asked
-    assert teacher.asked == 20 and model.feedback_sessions == 5 and model.feedback_asked == 50
+    assert teacher.asked == 20 and model.phase.sessions == 5 and model.phase.asked == 50
     labels = np.array([entry.label for entry in PreferenceJournal(journal).read()])
     np.testing.assert_array_equal(model.preferences.labels, labels[~np.isnan(labels)])
     ids = [entry.id for entry in PreferenceJournal(journal).read()]

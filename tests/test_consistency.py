@@ -109,7 +109,7 @@ def test_pebble_with_dynamics_consistency_logs_saves_and_loads(tiny_kwargs, tmp_
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **with_consistency(tiny_kwargs, {"max_transitions": 300}))
     model.set_logger(configure(str(tmp_path), ["csv"]))
     model.learn(400, log_interval=1)
-    assert model.feedback_sessions == 1
+    assert model.phase.sessions == 1
     s, a, s_next = stored_transitions(model.real_buffer, np.random.default_rng(0))
     assert s.shape == s_next.shape == (400, 3) and a.shape == (400, 1)
     model.save(tmp_path / "model")

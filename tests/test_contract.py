@@ -16,6 +16,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
 from sb3_pride import PEBBLE, PRIDE, DualReplayBuffer
 from sb3_pride.common.utils import merge_kwargs
+from sb3_pride.pebble.pebble import reset_critic
 from tests.test_pride import PAPER_MIXING
 
 #: a diffusion phase small enough for tests, retraining from the first feedback session on
@@ -41,7 +42,7 @@ def test_float64_mujoco_env_through_several_sessions(tiny_kwargs, algo):
     extra = TINY_DIFFUSION if algo is PRIDE else {}
     model = algo("MlpPolicy", env, seed=0, **tiny_kwargs, **extra)
     model.learn(650)
-    assert model.feedback_sessions == 4 and len(model.preferences) == 40
+    assert model.phase.sessions == 4 and len(model.preferences) == 40
     if algo is PRIDE:
         assert model.diffusion_retrains >= 2 and model.replay_buffer.synthetic.size() == 500
 
@@ -53,13 +54,13 @@ def test_early_terminating_env_waits_for_episodes_that_hold_a_segment(tiny_kwarg
     model = PEBBLE("MlpPolicy", "Hopper-v5", seed=0, **tiny_kwargs)
     with pytest.warns(UserWarning, match="segment_length=100 is longer than every episode so far"):
         model.learn(500)
-    assert model.feedback_sessions == 0 and model.next_feedback_step > 300  # tried again a segment later
+    assert model.phase.sessions == 0 and model.phase.next_step > 300  # tried again a segment later
     # an episode that holds a segment turns up: the session takes segments from it
     buffer = model.replay_buffer
     rows = slice(buffer.pos - 120, buffer.pos)
     buffer.dones[rows] = 0
     model.learn(100, reset_num_timesteps=False)
-    assert model.feedback_sessions == 1
+    assert model.phase.sessions == 1
 
 
 def test_env_whose_step_limit_is_shorter_than_a_segment_is_refused():
@@ -106,7 +107,7 @@ def test_critic_reset_renews_the_critics_own_features_extractor(tiny_kwargs, sha
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(250)  # pre-training: the critic (and its extractor) learned r_int
     critic_extractor, actor = parameters(model.critic.features_extractor), parameters(model.actor)
-    model.reset_critic()
+    reset_critic(model)
     renewed = [
         not th.equal(before, after)
         for before, after in zip(critic_extractor, parameters(model.critic.features_extractor), strict=True)

@@ -34,7 +34,7 @@ def test_learns_saves_and_loads_on_cuda(algo, options, tiny_kwargs, tmp_path):
     extra = TINY_DIFFUSION if algo is PRIDE else {}
     model = algo("MlpPolicy", "Pendulum-v1", seed=0, device="cuda", **merge_kwargs(tiny_kwargs, options), **extra)
     model.learn(700)  # pre-training, two feedback sessions (PRIDE: a generation)
-    assert model.feedback_labeled > 0 and on("cuda", model.policy, model.reward_model)
+    assert model.phase.labeled > 0 and on("cuda", model.policy, model.reward_model)
     if algo is PRIDE:
         assert model.replay_buffer.synthetic.size() > 0
         assert on("cuda", model.generator.diffusion, model.generator.dynamics)

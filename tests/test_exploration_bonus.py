@@ -51,11 +51,12 @@ def test_one_member_has_no_disagreement_to_explore():
 
 def sampled_rewards(model, batch_size=64, seed=0, bonus=True):
     """A minibatch as SAC draws it, with RUNE's bonus where it is on, or without it (``bonus=False``)."""
-    state, active = np.random.get_state(), model.replay_rewards.bonus_active
+    state, options = np.random.get_state(), model.reward_learner.options
     np.random.seed(seed)
-    model.replay_rewards.bonus_active = active and bonus
+    off = None if bonus else options.pop("exploration_bonus", None)  # the option off for this minibatch
     samples = model.replay_buffer.sample(batch_size, env=model._vec_normalize_env)
-    model.replay_rewards.bonus_active = active
+    if off is not None:
+        options["exploration_bonus"] = off
     np.random.set_state(state)
     return samples
 
@@ -77,9 +78,9 @@ def test_pebble_adds_the_ensembles_disagreement_after_pretraining(tiny_kwargs):
 
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **with_bonus(tiny_kwargs, {"beta_init": 0.5}))
     model.learn(250)  # still pre-training on the state entropy: no bonus
-    assert model.in_pretraining and not model.replay_rewards.bonus_active
+    assert model.phase.pretraining and not model.replay_rewards.bonus_active
     model.learn(200, reset_num_timesteps=False)
-    assert not model.in_pretraining and model.replay_rewards.bonus_active
+    assert not model.phase.pretraining and model.replay_rewards.bonus_active
     with_it = sampled_rewards(model)
     without = sampled_rewards(model, bonus=False)
     th.testing.assert_close(with_it.observations, without.observations)  # the same rows
@@ -103,7 +104,7 @@ def test_pride_adds_it_to_synthetic_rows_too_and_saves_without_it(tiny_kwargs, t
         **with_bonus(tiny_kwargs, True),
     )  # fmt: skip
     model.learn(250)
-    assert model.in_pretraining and not model.replay_rewards.bonus_active
+    assert model.phase.pretraining and not model.replay_rewards.bonus_active
     model.learn(150, reset_num_timesteps=False)
     assert model.replay_buffer.synthetic.size() > 0 and model.replay_rewards.bonus_active
     # one reward source, the real part's: it rewrites the whole minibatch once, synthetic rows included

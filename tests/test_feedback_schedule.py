@@ -63,9 +63,9 @@ class SessionSizes(BaseCallback):
         self.asked = 0
 
     def _on_step(self) -> bool:
-        if self.model.feedback_asked != self.asked:
-            self.sizes.append(self.model.feedback_asked - self.asked)
-            self.asked = self.model.feedback_asked
+        if self.model.phase.asked != self.asked:
+            self.sizes.append(self.model.phase.asked - self.asked)
+            self.asked = self.model.phase.asked
         return True
 
 
@@ -75,7 +75,7 @@ def test_a_run_asks_the_sessions_its_schedule_lists(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule=[30, 20], **tiny_kwargs)  # budget 60, K 20
     model.learn(1000, callback=sizes)  # sessions at steps 300, 600, 900
     assert sizes.sizes == [30, 20, 10]  # the third is K = 20, cut to what remains of the budget
-    assert model.feedback_asked == model.max_feedback == 60
+    assert model.phase.asked == model.max_feedback == 60
 
 
 @pytest.mark.slow
@@ -89,11 +89,11 @@ def test_a_schedule_that_cannot_ask_the_budget_within_the_run_is_refused_before_
         ValueError, match=r"feedback_schedule='shrinking': the budget cannot be asked within the run: 60 .* ask 41"
     ):
         model.learn(1500)
-    assert model.num_timesteps == 0 and model.feedback_asked == 0 and not journal.exists()
+    assert model.num_timesteps == 0 and model.phase.asked == 0 and not journal.exists()
     # long enough: sessions at 300, 600, 900 and 1200 ask 19 + 18 + 17 + 6 of a 6000-step run
     assert sum(n for _, n in FeedbackSchedule("shrinking", 20, 60).plan(1, 300, 300, 6000, 60)) == 60
     model.learn(1300, reset_num_timesteps=False)  # a run in parts is not checked: it asks as its schedule says
-    assert model.feedback_asked == 15 + 10 + 6 + 1  # int(20 (1300 - t) / 1300) at t = 300, 600, 900, 1200
+    assert model.phase.asked == 15 + 10 + 6 + 1  # int(20 (1300 - t) / 1300) at t = 300, 600, 900, 1200
 
 
 @pytest.mark.slow
@@ -104,11 +104,11 @@ def test_the_default_schedules_warn_when_the_run_ends_before_its_budget(tiny_kwa
     asked, then = (40, 60) if schedule == "constant" else (38, 46)
     with pytest.warns(UserWarning, match=f"the budget cannot be asked within the run: 60 .* ask {asked}"):
         model.learn(700)  # sessions at 300 and 600 only
-    assert model.feedback_asked == asked
+    assert model.phase.asked == asked
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a run in parts is not checked: its later parts may ask the rest
         model.learn(300, reset_num_timesteps=False)
-    assert model.feedback_asked == then  # the session at 900
+    assert model.phase.asked == then  # the session at 900
 
 
 @pytest.mark.parametrize("schedule", ["linear", [], [10, 0], [10, 2.5], [True], None])
@@ -130,17 +130,17 @@ def test_a_session_due_at_the_last_step_counts_as_asked_within_the_run(tiny_kwar
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         model.learn(600)  # sessions at 300 and 600
-    assert model.feedback_asked == 40
+    assert model.phase.asked == 40
 
 
 def test_a_refused_run_leaves_the_schedule_where_it_was(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, feedback_schedule=[20], **tiny_kwargs)
     model.learn(350, reset_num_timesteps=False)  # the first session at 300: the next at 600
-    assert model.next_feedback_step == 600
+    assert model.phase.next_step == 600
     for _ in range(2):  # a whole run of 50 steps cannot ask the 40 that remain
         with pytest.raises(ValueError, match="feedback_schedule"):
             model.learn(50)
-        assert model.next_feedback_step == 600 and model.num_timesteps == 350
+        assert model.phase.next_step == 600 and model.num_timesteps == 350
 
 
 def test_the_schedule_and_the_selection_are_read_when_a_session_is_asked(tiny_kwargs):
@@ -148,7 +148,7 @@ def test_the_schedule_and_the_selection_are_read_when_a_session_is_asked(tiny_kw
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.queries_per_session = 5
     model.learn(350, reset_num_timesteps=False)
-    assert model.feedback_asked == 5
+    assert model.phase.asked == 5
 
 
 @pytest.mark.parametrize("algo", ["pebble", "pride"])
@@ -159,5 +159,5 @@ def test_the_demo_asks_its_whole_budget_in_its_run(algo):
 
     model = {"pebble": PEBBLE, "pride": PRIDE}[algo]("MlpPolicy", "Pendulum-v1", **demo_kwargs(algo, "Pendulum-v1"))
     schedule = FeedbackSchedule(model.feedback_schedule, model.queries_per_session, model.max_feedback)
-    plan = schedule.plan(1, model.next_feedback_step, model.feedback_interval, 20_000, model.max_feedback)
+    plan = schedule.plan(1, model.phase.next_step, model.feedback_interval, 20_000, model.max_feedback)
     assert sum(queries for _, queries in plan) == model.max_feedback

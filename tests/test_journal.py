@@ -45,15 +45,15 @@ def test_a_new_model_takes_the_journals_answers_back_instead_of_asking(tiny_kwar
     first.learn(450)  # sessions at 300 and 400; the "skip" teacher skips some queries
     entries = PreferenceJournal(journal).read()
     assert [entry.session for entry in entries] == [1] * 10 + [2] * 10
-    assert first.feedback.journal.included == 20 and first.feedback_asked == 20
+    assert first.feedback.journal.included == 20 and first.phase.asked == 20
     np.testing.assert_array_equal(first.preferences.labels, journal_labels(journal))
-    assert first.feedback_labeled == len(journal_labels(journal)) < 20  # skips are journaled, not labeled
+    assert first.phase.labeled == len(journal_labels(journal)) < 20  # skips are journaled, not labeled
 
     teacher = CountingTeacher()
     tiny_kwargs.update(teacher=teacher)
     again = PEBBLE("MlpPolicy", "Pendulum-v1", seed=1, preference_journal=journal, **tiny_kwargs)
     again.learn(650)  # feedback sessions 1-2 from the journal, 3-4 asked
-    assert teacher.asked == 20 and again.feedback_asked == 40 and again.feedback.journal.included == 40
+    assert teacher.asked == 20 and again.phase.asked == 40 and again.feedback.journal.included == 40
     np.testing.assert_array_equal(again.preferences.labels, journal_labels(journal))
     ids = [entry.id for entry in PreferenceJournal(journal).read()]
     assert len(set(ids)) == len(ids) == 40  # never the same query twice
@@ -180,7 +180,7 @@ def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tm
     model.learn(250, reset_num_timesteps=False)
     # feedback session 4 (step 500) came back from the journal; only the fifth (step 600) was asked
     assert teacher.asked == 10
-    assert model.feedback_sessions == 5 and model.feedback_asked == 50 and model.feedback.journal.included == 50
+    assert model.phase.sessions == 5 and model.phase.asked == 50 and model.feedback.journal.included == 50
     np.testing.assert_array_equal(model.preferences.labels, journal_labels(journal))
     ids = [entry.id for entry in PreferenceJournal(journal).read()]
     assert len(set(ids)) == len(ids) == 50

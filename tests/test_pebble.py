@@ -7,6 +7,7 @@ from stable_baselines3.common.vec_env import VecNormalize
 
 from sb3_pride import PEBBLE, PRIDE, PreferenceReplayBuffer
 from sb3_pride.common.utils import merge_kwargs
+from sb3_pride.pebble.pebble import reset_critic
 
 
 class NaNReward(gym.Wrapper):
@@ -22,9 +23,9 @@ def test_short_run_on_dm_control(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "sb3_pride/walker-walk-v0", seed=0, **tiny_kwargs)
     model.learn(1200)
     # sessions at 300 (end of pre-training), 600, 900: 20 queries each, the oracle labels all of them
-    assert model.feedback_sessions == 3
-    assert model.feedback_asked == model.feedback_labeled == 60 == len(model.preferences)
-    assert model.next_feedback_step == 1200
+    assert model.phase.sessions == 3
+    assert model.phase.asked == model.phase.labeled == 60 == len(model.preferences)
+    assert model.phase.next_step == 1200
     # SAC learned from r̂: every stored reward is r̂ of the final reward model
     buffer = model.replay_buffer
     n = buffer.pos
@@ -42,7 +43,7 @@ def test_short_run_on_metaworld_reports_success(tiny_kwargs):
     tiny_kwargs.update(max_feedback=40)
     model = PEBBLE("MlpPolicy", "sb3_pride/button-press-v3", seed=0, **tiny_kwargs)
     model.learn(1100)
-    assert model.feedback_sessions == 2 and model.feedback_asked == 40
+    assert model.phase.sessions == 2 and model.phase.asked == 40
     assert len(model.ep_success_buffer) == 2  # 500-step episodes, is_success read at each end
     assert np.isfinite(model.reward_learner.correlation(model.real_buffer, np.random.default_rng(0)))
 
@@ -52,7 +53,7 @@ def test_learner_never_sees_the_true_reward(tiny_kwargs):
     env = make_vec_env("Pendulum-v1", n_envs=2, seed=0, wrapper_class=NaNReward)
     model = PEBBLE("MlpPolicy", env, seed=0, **tiny_kwargs)
     model.learn(800)
-    assert model.feedback_sessions >= 1 and np.all(np.isnan(model.replay_buffer.true_rewards[:10]))
+    assert model.phase.sessions >= 1 and np.all(np.isnan(model.replay_buffer.true_rewards[:10]))
     assert np.all(np.isfinite(model.replay_buffer.rewards))
     for parameter in model.policy.parameters():
         assert th.isfinite(parameter).all()
@@ -63,10 +64,10 @@ def test_pretraining_uses_state_entropy_then_r_hat(tiny_kwargs):
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs)
     model.learn(250)  # inside pre-training (ends at 300)
     assert model.replay_buffer.reward_source is model.replay_rewards
-    assert model.in_pretraining and model.replay_rewards.pretraining
+    assert model.phase.pretraining and model.replay_rewards.pretraining
     assert model.state_entropy.stats.count > 100  # r_int was computed for the SAC minibatches
     model.learn(100, reset_num_timesteps=False)
-    assert not model.in_pretraining and not model.replay_rewards.pretraining
+    assert not model.phase.pretraining and not model.replay_rewards.pretraining
     samples = model.replay_buffer.sample(32)
     expected = model.reward_model.predict(samples.observations.cpu().numpy(), samples.actions.cpu().numpy())
     np.testing.assert_allclose(samples.rewards.cpu().numpy().ravel(), expected, atol=1e-5)
@@ -97,7 +98,7 @@ def test_critic_reset_trains_on_r_hat(tiny_kwargs, algo):
 
     def recording_sample(batch_size, env=None):
         batch = sample(batch_size, env=env)
-        sampled.append((model.feedback_sessions, float(batch.rewards.abs().max())))
+        sampled.append((model.phase.sessions, float(batch.rewards.abs().max())))
         return batch
 
     model.replay_buffer.sample = recording_sample
@@ -119,7 +120,7 @@ def test_critic_reset_keeps_actor(tiny_kwargs):
     model.learn(250)
     actor = [p.clone() for p in model.actor.parameters()]
     critic = [p.clone() for p in model.critic.parameters()]
-    model.reset_critic()
+    reset_critic(model)
     assert all(th.equal(a, b) for a, b in zip(actor, model.actor.parameters(), strict=True))
     assert not any(th.equal(a, b) for a, b in zip(critic, model.critic.parameters(), strict=True))
     for p, q in zip(model.critic.parameters(), model.critic_target.parameters(), strict=True):
@@ -139,7 +140,7 @@ def test_save_load_round_trip_and_continue(tiny_kwargs, tmp_path):
     np.testing.assert_array_equal(loaded.reward_model.predict(obs, actions), model.reward_model.predict(obs, actions))
     np.testing.assert_array_equal(loaded.preferences.inputs, model.preferences.inputs)
     np.testing.assert_array_equal(loaded.preferences.labels, model.preferences.labels)
-    assert (loaded.feedback_asked, loaded.feedback_sessions) == (model.feedback_asked, model.feedback_sessions)
+    assert (loaded.phase.asked, loaded.phase.sessions) == (model.phase.asked, model.phase.sessions)
     np.testing.assert_array_equal(loaded.predict(obs, deterministic=True)[0], model.predict(obs, deterministic=True)[0])
 
     loaded.load_replay_buffer(tmp_path / "buffer")
@@ -147,7 +148,7 @@ def test_save_load_round_trip_and_continue(tiny_kwargs, tmp_path):
     assert loaded.replay_buffer.reward_source is loaded.replay_rewards and loaded.replay_rewards.learned
     loaded.learn(300, reset_num_timesteps=False)
     assert loaded.num_timesteps == 1000
-    assert loaded.feedback_sessions == 3 and loaded.feedback_asked == 60
+    assert loaded.phase.sessions == 3 and loaded.phase.asked == 60
 
 
 def test_bad_input_names_the_parameter(tiny_kwargs):
@@ -229,48 +230,6 @@ def test_a_custom_teacher_is_checked(tiny_kwargs):
 
 @pytest.mark.slow
 @pytest.mark.parametrize("algo", ["pebble", "pride"])
-def test_real_only_critic_diagnostics_are_logged_after_pretraining(tiny_kwargs, algo, tmp_path):
-    """train/critic_loss_real and train/q_real: the critic on real-only minibatches, logged by both algorithms from
-    the first feedback session on (so PRIDE's mixed batches and PEBBLE's real ones are compared like for like), and
-    train/q beside them, on minibatches drawn as SAC's updates draw them."""
-    import pandas as pd
-    from stable_baselines3.common.logger import configure
-
-    from sb3_pride import PRIDE
-    from tests.test_pride import TINY_DIFFUSION
-
-    extra = TINY_DIFFUSION if algo == "pride" else {}
-    model = (PRIDE if algo == "pride" else PEBBLE)("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **extra)
-    model.diagnostic_interval = 20
-    model.set_logger(configure(str(tmp_path), ["csv"]))
-    model.learn(600, log_interval=1)  # the first session at step 300
-    progress = pd.read_csv(tmp_path / "progress.csv")
-    for key in ("train/critic_loss_real", "train/q_real", "train/q"):
-        logged = progress[[key, "time/total_timesteps"]].dropna()
-        assert len(logged) >= 1 and np.all(np.isfinite(logged[key]))
-        assert logged["time/total_timesteps"].min() > 300  # never during pre-training, where r_int is the reward
-    assert (progress["train/critic_loss_real"].dropna() >= 0).all()
-
-
-@pytest.mark.slow
-def test_critic_diagnostics_change_no_training_run(tiny_kwargs):
-    """The diagnostics draw minibatches (PRIDE's mixed ones from NumPy's global RNG, as SB3 does) from their own
-    generators: a run that logs them at every train() call trains exactly as one that never does."""
-    from sb3_pride import PRIDE
-    from tests.test_pride import TINY_DIFFUSION
-
-    def critic_after(diagnostic_interval):
-        model = PRIDE("MlpPolicy", "Pendulum-v1", seed=0, **tiny_kwargs, **TINY_DIFFUSION)
-        model.diagnostic_interval = diagnostic_interval
-        model.learn(450)  # synthetic data from step 300
-        assert model.replay_buffer.synthetic.size() > 0
-        return th.nn.utils.parameters_to_vector(model.critic.parameters())
-
-    th.testing.assert_close(critic_after(1), critic_after(10**9), rtol=0, atol=0)
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize("algo", ["pebble", "pride"])
 def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo):
     """SB3's gradient_steps=0: learn() collects and runs the feedback sessions but never calls train(); the user's own
     loop does, through the same public methods the callbacks use."""
@@ -282,13 +241,13 @@ def test_gradient_steps_zero_collects_and_a_users_loop_trains(tiny_kwargs, algo)
                                                     **extra)  # fmt: skip
     actor = [p.detach().clone() for p in model.actor.parameters()]
     model.learn(400)
-    assert model.feedback_sessions == 1 and model._n_updates == 0  # the critic reset's updates only touch the critic
+    assert model.phase.sessions == 1 and model._n_updates == 0  # the critic reset's updates only touch the critic
     assert all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
     model.train(gradient_steps=5, batch_size=32)
     assert model._n_updates == 5 and not all(th.equal(p, q) for p, q in zip(actor, model.actor.parameters(), strict=True))
     assert model.publish_queries(asynchronous=False)  # a session called from the user's loop
     model.take_answers()
-    assert model.feedback_sessions == 2
+    assert model.phase.sessions == 2
     if algo == "pride":
         retrains = model.diffusion_retrains
         report = model.retrain_generator()

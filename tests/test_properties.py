@@ -10,7 +10,7 @@ Bad input, systematically: property-based tests with Hypothesis.
    not know, naming the setting.
 2. The teacher boundary. The model's ``feedback.ask`` and the feedback session inside ``learn()`` refuse a teacher's
    answer of the wrong length, or with a label outside [0, 1] (±inf included), with a ``ValueError``; then nothing
-   is recorded: ``preferences``, ``feedback_asked`` / ``feedback_labeled`` / ``feedback_sessions``, the journal
+   is recorded: ``preferences``, ``phase.asked`` / ``phase.labeled`` / ``phase.sessions``, the journal
    entries the run includes (``feedback.journal.included``) and the preference journal are as before. Labels drawn
    from {0, 0.5, 1, NaN} and [0, 1] are accepted and counted: every query as asked, the non-NaN ones as labeled and
    added to the preferences.
@@ -344,24 +344,24 @@ class EchoTeacher:
 def model_at_first_session(journal) -> PEBBLE:
     """A PEBBLE whose pre-training is over: its next env step opens the first feedback session."""
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=EchoTeacher(), preference_journal=journal, **SESSION)
-    model.learn(model.next_feedback_step - 1)
-    assert model.teacher.asked == [] and model.feedback_sessions == 0
+    model.learn(model.phase.next_step - 1)
+    assert model.teacher.asked == [] and model.phase.sessions == 0
     return model
 
 
 def session_at_next_step(model: PEBBLE, labels) -> None:
     """One more env step in ``learn()``, which opens a feedback session answered with ``labels``."""
     model.teacher.labels = labels
-    model.next_feedback_step = model.num_timesteps + 1
+    model.phase.next_step = model.num_timesteps + 1
     model.learn(1, reset_num_timesteps=False)
 
 
 def feedback_record(model: PEBBLE) -> dict:
     """Everything a feedback session records."""
     return dict(
-        asked=model.feedback_asked,
-        labeled=model.feedback_labeled,
-        sessions=model.feedback_sessions,
+        asked=model.phase.asked,
+        labeled=model.phase.labeled,
+        sessions=model.phase.sessions,
         journal_entries=model.feedback.journal.included,
         journal=len(PreferenceJournal(model.preference_journal).read()),
         inputs=model.preferences.inputs.copy(),
@@ -392,7 +392,7 @@ def bare_model():
 
 def ask_teacher(model: PEBBLE, pairs: SegmentPairs) -> np.ndarray:
     """The model's teacher asked about ``pairs`` as in its next feedback session, the answer checked."""
-    context = model.feedback.context(model.feedback_sessions + 1, model.feedback_asked, model.max_feedback)
+    context = model.feedback.context(model.phase.sessions + 1, model.phase.asked, model.max_feedback)
     return model.feedback.ask(pairs, context)
 
 

@@ -115,7 +115,7 @@ def test_pebble_runs_with_kcenter_query_selection(tiny_kwargs):
 
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, query_selection="kcenter_disagreement", **tiny_kwargs)
     model.learn(700)
-    assert model.feedback_sessions == 2 and model.feedback_asked == 40
+    assert model.phase.sessions == 2 and model.phase.asked == 40
 
 
 class RecentRows:
@@ -165,6 +165,6 @@ def test_pebble_hybrid_replay_is_on_while_queries_remain(tiny_kwargs):
     assert source.recent_share == 0.0 and source.recent_rows is None
     model.learn(450, reset_num_timesteps=False)  # after the first session, queries remain
     assert source.recent_share == 0.5 and 0 < len(source.recent_rows) <= 400
-    model.max_feedback = model.feedback_asked  # every query asked: uniform again
+    model.max_feedback = model.phase.asked  # every query asked: uniform again
     model.learn(10, reset_num_timesteps=False)
     assert source.recent_share == 0.0

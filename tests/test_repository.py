@@ -236,11 +236,11 @@ def test_pebble_stays_sac_sized() -> None:
 
     from sb3_pride import PEBBLE
 
-    assert len((ROOT / "sb3_pride/pebble/pebble.py").read_text().splitlines()) <= 450
+    assert len((ROOT / "sb3_pride/pebble/pebble.py").read_text().splitlines()) <= 400
     pebble = class_node("sb3_pride/pebble/pebble.py", "PEBBLE")
-    assert len(methods(pebble)) <= 25, [f.name for f in methods(pebble)]
+    assert len(methods(pebble)) <= 18, [f.name for f in methods(pebble)]
     init = next(f for f in methods(pebble) if f.name == "__init__")
-    assert init.end_lineno is not None and init.end_lineno - init.lineno + 1 <= 90
+    assert init.end_lineno is not None and init.end_lineno - init.lineno + 1 <= 80
     sac = set(inspect.signature(SAC.__init__).parameters)
     own = [
         name
@@ -281,14 +281,32 @@ def test_a_labels_way_passes_through_few_pebble_methods(tiny_kwargs) -> None:
         model.train(gradient_steps=1, batch_size=model.batch_size)
     finally:
         sys.setprofile(None)
-    assert "take_answers" in called and "train" in called
+    assert "take_answers" in called and "train" not in called  # SAC's train(), on the rewards replay_rewards gives
     assert len(called) <= 6, sorted(called)
 
 
-def test_human_files_and_the_web_teacher_stay_small() -> None:
-    """No file under sb3_pride/human/ is a hub: each ≤ 400 lines, and WebTeacher a facade of ≤ 15 methods."""
-    sizes = {path.name: len(path.read_text().splitlines()) for path in (ROOT / "sb3_pride/human").glob("*.py")}
-    assert max(sizes.values()) <= 400, sizes
+def test_size_budgets_hold_on_the_code_as_ruff_formats_it() -> None:
+    """Budgets are met by design, measured on the code as ``ruff format`` lays it out (CI checks that it does) with no
+    ``fmt: skip``: every module of sb3_pride/ ≤ 400 lines, no class of it over 20 methods, every file of benchmarks/
+    ≤ 600 lines."""
+    package, scripts = sorted((ROOT / "sb3_pride").rglob("*.py")), sorted((ROOT / "benchmarks").glob("*.py"))
+    assert not [path.name for path in package + scripts if "fmt: skip" in path.read_text()]
+    sizes = {str(path.relative_to(ROOT)): len(path.read_text().splitlines()) for path in package}
+    assert max(sizes.values()) <= 400, {name: size for name, size in sizes.items() if size > 400}
+    assert all(len(path.read_text().splitlines()) <= 600 for path in scripts), [
+        (path.name, len(path.read_text().splitlines())) for path in scripts if len(path.read_text().splitlines()) > 600
+    ]
+    classes = [
+        (path.name, node.name, len(methods(node)))
+        for path in package
+        for node in ast.walk(ast.parse(path.read_text()))
+        if isinstance(node, ast.ClassDef)
+    ]
+    assert max(count for *_, count in classes) <= 20, [entry for entry in classes if entry[2] > 20]
+
+
+def test_the_web_teacher_stays_a_facade() -> None:
+    """WebTeacher a facade of ≤ 15 methods."""
     teacher = next(
         node
         for path in (ROOT / "sb3_pride/human").glob("*.py")

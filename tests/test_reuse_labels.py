@@ -35,13 +35,13 @@ def test_priors_train_r_hat_from_the_first_session_count_nowhere_and_are_never_a
     model = PEBBLE(
         "MlpPolicy", "Pendulum-v1", seed=0, preference_journal=own, prior_preferences=[earlier_journal], **tiny_kwargs
     )
-    assert len(model.preferences) == 60 and model.feedback_asked == 0
+    assert len(model.preferences) == 60 and model.phase.asked == 0
     model.learn(1000)
     history = model.reward_learner.history
     # r̂ learned from the 60 priors at the first session, and from the run's own labels beside them from then on
     assert history[0]["session"] == 1 and history[0]["labels"] >= 60
-    assert history[-1]["labels"] == 60 + model.feedback_labeled > 60
-    assert model.feedback_labeled == len(model.preferences) - 60 and model.feedback_asked <= tiny_kwargs["max_feedback"]
+    assert history[-1]["labels"] == 60 + model.phase.labeled > 60
+    assert model.phase.labeled == len(model.preferences) - 60 and model.phase.asked <= tiny_kwargs["max_feedback"]
     # the same seed draws the earlier run's first queries again: none of them is asked
     earlier_ids = {entry.id for entry in PreferenceJournal(earlier_journal).read()}
     own_ids = {entry.id for entry in PreferenceJournal(own).read()}
@@ -157,7 +157,7 @@ def test_a_session_whose_candidates_were_all_answered_before_draws_fresh_ones(ea
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # no budget warning, no short session
         model.learn(700)
-    assert model.feedback_sessions == 2 and model.feedback_asked == 40
+    assert model.phase.sessions == 2 and model.phase.asked == 40
     own = PreferenceJournal(tmp_path / "own.jsonl").read()
     assert [entry.session for entry in own] == [1] * 20 + [2] * 20
     earlier_ids = {entry.id for entry in PreferenceJournal(earlier_journal).read()}
@@ -172,7 +172,7 @@ def test_a_session_that_finds_too_few_pairs_never_asked_says_how_many_it_could_n
     model = PEBBLE("MlpPolicy", env, seed=0, **settings)
     with pytest.warns(UserWarning, match=r"feedback session 1 asks 4 of its 20 queries: .*16 .*not asked"):
         model.learn(310)
-    assert model.feedback_asked == 4
+    assert model.phase.asked == 4
     assert len({query_id(pair) for pair in model.preferences.inputs}) == len(model.preferences)
 
 

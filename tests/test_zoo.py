@@ -115,7 +115,7 @@ def test_cli_trains_enjoys_and_resumes_pride_on_dm_control(tmp_path):
     run = tmp_path / "logs/pride/dm_control-walker-walk-v0_1"
     model = PRIDE.load(run / "dm_control-walker-walk-v0.zip")
     # the retrain due at step 400, the last of this learn(), waits for the first step of the next one
-    assert model.num_timesteps == 400 and model.feedback_sessions == 2 and model.diffusion_retrains == 1
+    assert model.num_timesteps == 400 and model.phase.sessions == 2 and model.diffusion_retrains == 1
 
     out = zoo("enjoy", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-f", "logs", "--exp-id", "1",
               "-n", "50", "--no-render", cwd=tmp_path)  # fmt: skip
@@ -128,7 +128,7 @@ def test_cli_trains_enjoys_and_resumes_pride_on_dm_control(tmp_path):
     zoo("train", "--algo", "pride", "--env", "dm_control/walker-walk-v0", "-n", "200", "-f", "logs", "-conf", conf,
         "--eval-freq", "0", "-i", str(run / "dm_control-walker-walk-v0.zip"), "-params", *TINY, cwd=tmp_path)  # fmt: skip
     resumed = PRIDE.load(tmp_path / "logs/pride/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
-    assert resumed.num_timesteps == 600 and resumed.feedback_sessions == 3 and resumed.diffusion_retrains == 2
+    assert resumed.num_timesteps == 600 and resumed.phase.sessions == 3 and resumed.diffusion_retrains == 2
     # resumed without its replay buffer: the waiting retrain is made once B_real holds a minibatch (64 rows, step 465)
     assert resumed.next_diffusion_step == 665
 
@@ -142,7 +142,7 @@ def test_cli_trains_pebble_on_metaworld_with_default_hyperparams(tmp_path):
         config = dict(yaml.load(file, Loader=yaml.UnsafeLoader))
     assert config["reward_kwargs"]["epochs"] == 10 and config["learning_rate"] == 3e-4 and config["ent_coef"] == "auto_0.1"
     model = PEBBLE.load(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/sb3_pride-button-press-v3.zip")
-    assert model.num_timesteps == 600 and model.feedback_asked == 30
+    assert model.num_timesteps == 600 and model.phase.asked == 30
     evaluations = np.load(tmp_path / "logs/pebble/sb3_pride-button-press-v3_1/evaluations.npz")
     assert "successes" in evaluations and evaluations["results"].shape == (1, 1)
 
@@ -180,7 +180,7 @@ def test_zoo_checkpoints_carry_the_replay_buffer_and_resume_with_the_journal(tmp
               "--eval-freq", "0", "-i", str(run / "rl_model_300_steps.zip"), "-params", *params, cwd=tmp_path)  # fmt: skip
     assert "Loading the checkpoint's replay buffer" in out
     resumed = PEBBLE.load(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
-    assert resumed.num_timesteps == 400 and resumed.feedback_sessions == 2 and resumed.feedback.journal.included == 20
+    assert resumed.num_timesteps == 400 and resumed.phase.sessions == 2 and resumed.feedback.journal.included == 20
     assert len(PreferenceJournal(journal).read()) == 20  # feedback session 2 came back from the journal: nothing asked again
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
 
@@ -214,7 +214,7 @@ def test_zoo_resume_goes_on_from_the_newest_complete_checkpoint_after_a_killed_s
     ]
     resumed = PEBBLE.load(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2/dm_control-walker-walk-v0.zip")
     assert resumed.num_timesteps == 400  # on to the run's -n, not 400 more
-    assert resumed.feedback_sessions == 2 and resumed.feedback.journal.included == 20
+    assert resumed.phase.sessions == 2 and resumed.feedback.journal.included == 20
     assert len(PreferenceJournal(journal).read()) == 20  # both sessions came back from the journal
     np.testing.assert_array_equal(resumed.preferences.labels, [entry.label for entry in answers])
     checkpoint = latest_checkpoint(tmp_path / "logs/pebble/dm_control-walker-walk-v0_2")

@@ -280,7 +280,7 @@ class DualReplayBuffer(ReplayBuffer):
     ``ReplayBuffer`` plus:
 
     :param synthetic_buffer_size: capacity of the synthetic part (SynthER: 1e6)
-    :param synthetic_ratio: u, the synthetic share of each minibatch
+    :param synthetic_ratio: u, the synthetic share of each minibatch, unless ``ratio_source`` says (PRIDE's u, as ramped)
     """
 
     def __init__(
@@ -306,6 +306,11 @@ class DualReplayBuffer(ReplayBuffer):
         self.optimize_memory_usage = False
         self.handle_timeout_termination = handle_timeout_termination
         self.synthetic_ratio = synthetic_ratio
+        #: u as the algorithm has it now (PRIDE's ramp), asked at each minibatch; None: ``synthetic_ratio``
+        self.ratio_source: Callable[[], float] | None = None
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "ratio_source": None}  # the algorithm's, attached again when the buffer is loaded
 
     # what SB3 reads of a replay buffer, answered by the real part
     @property
@@ -359,7 +364,8 @@ class DualReplayBuffer(ReplayBuffer):
 
     def n_synthetic(self, batch_size: int) -> int:
         """Synthetic transitions in a minibatch of ``batch_size``: round(u · B), 0 while B_syn is empty."""
-        return round(self.synthetic_ratio * batch_size) if self.synthetic.size() > 0 else 0
+        ratio = self.synthetic_ratio if self.ratio_source is None else self.ratio_source()
+        return round(ratio * batch_size) if self.synthetic.size() > 0 else 0
 
     def sample(self, batch_size: int, env: VecNormalize | None = None) -> ReplayBufferSamples:
         n_synthetic = self.n_synthetic(batch_size)

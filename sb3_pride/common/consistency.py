@@ -116,7 +116,9 @@ class ConsistencyModel(th.nn.Module):
         super().__init__()
         members = reward_model.members
         if len(members.weights) < 2:
-            raise ValueError("dynamics_consistency needs a reward model with at least one hidden layer (reward_kwargs: net_arch)")
+            raise ValueError(
+                "dynamics_consistency needs a reward model with at least one hidden layer (reward_kwargs: net_arch)"
+            )
         self.members = [members]  # a list: the reward model's parameters are not this module's (nor saved with it)
         self.obs_dim = obs_dim
         self.settings = settings

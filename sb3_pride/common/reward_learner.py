@@ -5,7 +5,7 @@ the reward-learning options from the literature. One object, given to ``PEBBLE``
 
 import inspect
 from types import SimpleNamespace
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 import torch as th
@@ -249,44 +249,62 @@ for _name, _option in (
     register_reward_option(_name, _option)
 
 
+class TrainingState(Protocol):
+    """What ``ReplayRewards`` reads of the algorithm it serves (PEBBLE): its env step, its preference phase (whether it
+    pre-trains, whether r̂ has learned, the queries asked), its budget, its query sampler and its replay buffer."""
+
+    num_timesteps: int
+    max_feedback: int
+    phase: Any
+    query_sampler: QuerySampler
+    _vec_normalize_env: VecNormalize | None
+
+    @property
+    def real_buffer(self) -> PreferenceReplayBuffer: ...
+
+
 class ReplayRewards:
     """
     The rewards SAC learns from, as the replay buffer asks for them (its ``reward_source``): r_int, the k-NN state
     entropy (Eq. 3), while pre-training; then r̂ of ``learner`` (Eq. 1), stored with each new transition and relabeled
     after each reward update, plus RUNE's bonus on each minibatch where it is on; and the rows QPA's hybrid replay
-    draws its share of each minibatch from. The algorithm says which phase it is in (``update()``).
+    draws its share of each minibatch from. It reads where training stands from ``algorithm`` when asked.
 
     :param learner: r̂
     :param state_entropy: r_int
+    :param algorithm: the algorithm whose buffer asks (its phase, env step, query sampler)
     """
 
-    def __init__(self, learner: RewardLearner, state_entropy: StateEntropyReward):
-        self.learner, self.state_entropy = learner, state_entropy
-        #: r_int until the first feedback session
-        self.pretraining = True
-        #: whether r̂ has learned from labels (before that, new transitions store 0, overwritten by the first relabel)
-        self.learned = False
-        self.bonus_active = False
-        self.step = 0
-        self.vec_normalize: VecNormalize | None = None
-        self.recent_share: float = 0.0
-        self.recent_rows: np.ndarray | None = None
+    def __init__(self, learner: RewardLearner, state_entropy: StateEntropyReward, algorithm: TrainingState):
+        self.learner, self.state_entropy, self.algorithm = learner, state_entropy, algorithm
 
-    def update(
-        self,
-        step: int,
-        pretraining: bool,
-        learned: bool,
-        recent_rows: np.ndarray | None = None,
-        recent_share: float = 0.0,
-        vec_normalize: VecNormalize | None = None,
-    ) -> None:
-        """Where training stands: the env step (RUNE's β_t), the phase, and QPA's rows (None: uniform minibatches)."""
-        # preferences of earlier runs (PEBBLE's prior_preferences) wait for the first session: r̂ has not learned yet
-        self.step, self.pretraining, self.learned = step, pretraining, learned and not pretraining
-        self.vec_normalize = vec_normalize
-        self.bonus_active = self.learner.exploration_bonus is not None and not pretraining and learned
-        self.recent_rows, self.recent_share = recent_rows, recent_share if recent_rows is not None else 0.0
+    @property
+    def pretraining(self) -> bool:
+        """r_int until the first feedback session is closed."""
+        return self.algorithm.phase.pretraining
+
+    @property
+    def learned(self) -> bool:
+        """Whether r̂ has learned from labels (before that, new transitions store 0, overwritten by the first relabel)."""
+        return self.algorithm.phase.learned
+
+    @property
+    def bonus_active(self) -> bool:
+        """RUNE's bonus is on and r̂ has learned."""
+        return self.learner.exploration_bonus is not None and self.learned
+
+    @property
+    def recent_share(self) -> float:
+        """QPA's hybrid replay: the share of each minibatch from ``recent_rows`` while queries remain (0: uniform)."""
+        algorithm = self.algorithm
+        share = algorithm.query_sampler.hybrid_replay
+        on = share > 0 and not algorithm.phase.pretraining and algorithm.phase.asked < algorithm.max_feedback
+        return share if on else 0.0
+
+    @property
+    def recent_rows(self) -> np.ndarray | None:
+        """The rows of the most recent episodes (the queries' episodes) while the hybrid replay is on, else None."""
+        return self.algorithm.query_sampler.recent_rows(self.algorithm.real_buffer) if self.recent_share > 0 else None
 
     def new_rewards(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """r̂ of transitions being added, or 0 before r̂ has learned from labels (the first relabel overwrites it)."""
@@ -303,5 +321,6 @@ class ReplayRewards:
             stored = buffer.to_torch(buffer.stored_observations(env), copy=False)
             return samples._replace(rewards=self.state_entropy(samples.observations, stored).to(samples.rewards.dtype))
         if self.bonus_active:
-            return samples._replace(rewards=samples.rewards + self.learner.bonus(samples, self.step, self.vec_normalize))
+            step, vec_normalize = self.algorithm.num_timesteps, self.algorithm._vec_normalize_env
+            return samples._replace(rewards=samples.rewards + self.learner.bonus(samples, step, vec_normalize))
         return samples

@@ -24,17 +24,20 @@ class FeedbackCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         model = self.model
+        if model.replay_rewards.bonus_active:  # RUNE's β_t counts num_timesteps: learn(reset_num_timesteps=True) resets it
+            model.logger.record("train/exploration_beta", model.reward_learner.exploration_bonus.beta(model.num_timesteps))
         if model.feedback.pending is not None:
             if model.feedback.ready:
                 self._take_answers()
             return True
-        if model.feedback_asked >= model.max_feedback or model.num_timesteps < model.next_feedback_step:
+        phase = model.phase
+        if phase.asked >= model.max_feedback or model.num_timesteps < phase.next_step:
             return True
         if not model.publish_queries():
-            model.next_feedback_step = model.num_timesteps + model.segment_length
+            phase.next_step = model.num_timesteps + model.segment_length
             return True
         if not model.asynchronous_feedback:
-            model.next_feedback_step = model.num_timesteps + model.feedback_interval
+            phase.next_step = model.num_timesteps + model.feedback_interval
             self._take_answers()
         return True
 
@@ -45,11 +48,11 @@ class FeedbackCallback(BaseCallback):
     def _take_answers(self) -> None:
         model = self.model
         pending = model.feedback.pending
-        first, published = model.in_pretraining, None if pending is None else pending.published_step
+        first, published = model.phase.pretraining, None if pending is None else pending.published_step
         model.take_answers()
         if model.asynchronous_feedback and published is not None:
             # scheduled from the session's publication, once it is answered: a checkpoint taken while a session is
             # open (which does not hold it) publishes it again at once when resumed
-            model.next_feedback_step = published + model.feedback_interval
+            model.phase.next_step = published + model.feedback_interval
         if first:
             model.end_pretraining()

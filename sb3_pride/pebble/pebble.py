@@ -1,3 +1,4 @@
+import inspect
 import os
 import time
 from collections.abc import Sequence
@@ -22,9 +23,9 @@ from sb3_pride.common.queries import QuerySampler
 from sb3_pride.common.reward_learner import ReplayRewards, RewardLearner
 from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import InteractiveTeacher, Teacher
-from sb3_pride.common.utils import seeded
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
+from sb3_pride.pebble.phase import PreferencePhase
 from sb3_pride.pebble.earlier_versions import renamed_settings_error
 from sb3_pride.pebble.settings import (
     STRUCTURED_SETTINGS,
@@ -35,6 +36,24 @@ from sb3_pride.pebble.settings import (
 )
 
 SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
+#: the constructor arguments PEBBLE passes on to SAC as they are
+SAC_ARGUMENTS = set(inspect.signature(SAC.__init__).parameters) - {"self", "env", "replay_buffer_class", "_init_setup_model"}
+
+
+def reset_critic(model: SAC) -> None:
+    """
+    PEBBLE's reset after pre-training (B-Pref re-creates the critic): fresh Q-networks and, unless it is the
+    actor's (``share_features_extractor=True``), a fresh features extractor; the target copied from them;
+    fresh Adam state. The actor and the entropy coefficient keep what pre-training taught them.
+    """
+    shared = model.critic.features_extractor if model.critic.share_features_extractor else None
+    kept = set() if shared is None else {id(module) for module in shared.modules()}
+    for module in model.critic.modules():
+        reset_parameters = getattr(module, "reset_parameters", None)
+        if callable(reset_parameters) and id(module) not in kept:
+            reset_parameters()
+    model.critic_target.load_state_dict(model.critic.state_dict())
+    model.critic.optimizer.state.clear()
 
 
 class PEBBLE(AtomicSaves, SAC):
@@ -151,16 +170,9 @@ class PEBBLE(AtomicSaves, SAC):
             # rl-zoo3 and SB3's load() build the model with _init_setup_model=False before restoring its
             # segment_length: load() checks the episode length itself, once the saved value is back
             env = check_env(env, segment_length if _init_setup_model else None, verbose)
-        super().__init__(
-            policy, env, learning_rate=learning_rate, buffer_size=buffer_size, learning_starts=learning_starts,
-            batch_size=batch_size, tau=tau, gamma=gamma, train_freq=train_freq, gradient_steps=gradient_steps,
-            action_noise=action_noise, replay_buffer_class=replay_buffer_class or self.buffer_class,
-            replay_buffer_kwargs=replay_buffer_kwargs, optimize_memory_usage=optimize_memory_usage, ent_coef=ent_coef,
-            target_update_interval=target_update_interval, target_entropy=target_entropy, use_sde=use_sde,
-            sde_sample_freq=sde_sample_freq, use_sde_at_warmup=use_sde_at_warmup, stats_window_size=stats_window_size,
-            tensorboard_log=tensorboard_log, policy_kwargs=policy_kwargs, verbose=verbose, seed=seed, device=device,
-            _init_setup_model=False,
-        )  # fmt: skip
+        sac_arguments = {name: value for name, value in locals().items() if name in SAC_ARGUMENTS}
+        sac_arguments["replay_buffer_class"] = replay_buffer_class or self.buffer_class
+        super().__init__(env=env, **sac_arguments, _init_setup_model=False)
         self.teacher = teacher  # as given: a registered name stays a name, so that rl-zoo3 can pass it again on resume
         self.max_feedback, self.feedback_interval = max_feedback, feedback_interval
         self.queries_per_session, self.feedback_schedule = queries_per_session, feedback_schedule
@@ -169,16 +181,10 @@ class PEBBLE(AtomicSaves, SAC):
         self.preference_journal = None if preference_journal is None else os.fspath(preference_journal)
         self.prior_preferences = prior_preferences
         self.reward_kwargs, self.query_kwargs, self.pretraining_kwargs = (settings[name] for name in STRUCTURED_SETTINGS)
-        # learning state, saved with the model
-        self.feedback_asked = self.feedback_labeled = self.feedback_sessions = 0
-        #: env steps the agent made while a published session's answers were awaited, over the run
-        self.steps_awaiting_feedback = 0
-        self.next_feedback_step = learning_starts + unsupervised_steps
+        #: where the preference phase stands (sessions, queries asked and labeled, the next session's step), saved
+        self.phase = PreferencePhase(next_step=learning_starts + unsupervised_steps)
         self.preference_rng = np.random.default_rng(seed)
         self.state_entropy = StateEntropyReward(k=self.pretraining_kwargs["entropy_k"])
-        #: train() calls between two critic diagnostics (train/critic_loss_real, train/q_real, train/q)
-        self.diagnostic_interval, self._train_calls = 100, 0
-        self._diagnostic_rng = np.random.default_rng(None if seed is None else seed + 1)
         if _init_setup_model:
             self._setup_model()
 
@@ -196,22 +202,38 @@ class PEBBLE(AtomicSaves, SAC):
         self.query_sampler = QuerySampler.from_settings(self.segment_length, self.query_selection, self.query_kwargs)
         if getattr(self, "preferences", None) is None:  # a loaded model has its own, its priors included
             self.preferences = PreferenceDataset(self.segment_length, obs_dim + action_dim)
+        self.phase.preferences = self.preferences
         header = journal_header(env_id(self.env), self.observation_space.shape, self.action_space.shape, self.segment_length)
         included = self.feedback.journal.included
         self.feedback.open_journal(self.preference_journal, header, included, self.preferences, self.prior_preferences)
-        self.replay_rewards = ReplayRewards(self.reward_learner, self.state_entropy)
-        self.replay_rewards.update(self.num_timesteps, self.in_pretraining, learned=len(self.preferences) > 0)
-        self.real_buffer.reward_source = self.replay_rewards
-        self.feedback.attach(self.teacher, self.seed, self.env, self.real_buffer, (self.feedback_asked, self.max_feedback))
+        self.replay_rewards = ReplayRewards(self.reward_learner, self.state_entropy, self)
+        self.attach_parts()
 
     def set_env(self, env: GymEnv, force_reset: bool = True) -> None:
         """SB3's ``set_env``, after the constructor's checks of ``env`` (spaces, reward normalization, episode length)."""
         super().set_env(check_env(env, self.segment_length, self.verbose), force_reset=force_reset)
-        self.feedback.attach(self.teacher, self.seed, self.env, self.real_buffer, (self.feedback_asked, self.max_feedback))
+        self.attach_parts()
+
+    def attach_parts(self) -> None:
+        """
+        The parts that work on the replay buffer and the env, attached to the current ones (after the model is made,
+        its env changed or its buffer loaded): the buffer asks ``replay_rewards`` for SAC's rewards, and an interactive
+        teacher records or re-renders what the env shows.
+        """
+        self.real_buffer.reward_source = self.replay_rewards
+        self.feedback.attach(self.teacher, self.seed, self.env, self.real_buffer, (self.phase.asked, self.max_feedback))
 
     @classmethod
-    def load(cls, path, env: GymEnv | None = None, device: th.device | str = "auto", custom_objects=None,
-             print_system_info: bool = False, force_reset: bool = True, **kwargs):  # fmt: skip
+    def load(
+        cls,
+        path: str | os.PathLike,
+        env: GymEnv | None = None,
+        device: th.device | str = "auto",
+        custom_objects: dict[str, Any] | None = None,
+        print_system_info: bool = False,
+        force_reset: bool = True,
+        **kwargs: Any,
+    ):
         """
         SB3's ``load``; a new ``env`` gets the constructor's checks with the saved ``segment_length``, a structured
         setting given (``reward_kwargs``, ...) changes the saved one entry by entry, and the journal is found from
@@ -228,71 +250,29 @@ class PEBBLE(AtomicSaves, SAC):
         """Where the agent's own transitions and their true rewards are (the whole replay buffer in PEBBLE)."""
         return self.replay_buffer
 
-    @property
-    def in_pretraining(self) -> bool:
-        """True until the first feedback session: SAC then learns from the state-entropy reward."""
-        return self.feedback_sessions == 0
-
-    def train(self, gradient_steps: int, batch_size: int = 64) -> None:
-        # QPA's hybrid replay: after pre-training and while queries remain, a share of each minibatch from their episodes
-        share = self.query_sampler.hybrid_replay
-        hybrid = share > 0 and not self.in_pretraining and self.feedback_asked < self.max_feedback
-        rows = self.query_sampler.recent_rows(self.real_buffer) if hybrid else None
-        learned = len(self.preferences) > 0
-        self.replay_rewards.update(self.num_timesteps, self.in_pretraining, learned, rows, share, self._vec_normalize_env)
-        if self.replay_rewards.bonus_active:  # RUNE's β_t counts num_timesteps: learn(reset_num_timesteps=True) resets it
-            self.logger.record("train/exploration_beta", self.reward_learner.exploration_bonus.beta(self.num_timesteps))  # type: ignore[union-attr]
-        super().train(gradient_steps, batch_size)
-        self._train_calls += 1
-        if not self.in_pretraining and self._train_calls % self.diagnostic_interval == 0:
-            critic_loss, q_value = self.critic_diagnostics(batch_size, real_only=True)
-            self.logger.record_mean("train/critic_loss_real", critic_loss)
-            self.logger.record_mean("train/q_real", q_value)
-            # beside SB3's train/critic_loss: Q on a minibatch drawn as SAC draws it (mixed in PRIDE, real in PEBBLE)
-            self.logger.record_mean("train/q", self.critic_diagnostics(batch_size, real_only=False)[1])
-
-    @th.no_grad()
-    def critic_diagnostics(self, batch_size: int, real_only: bool = True) -> tuple[float, float]:
-        """
-        SAC's critic loss and the mean Q(s, a) on a minibatch of real transitions only (``real_only``: PEBBLE's and
-        PRIDE's critics compared like for like), or on one drawn as SAC's updates draw it. Draws from its own random
-        generators (NumPy's and torch's global states are restored), so logging it changes no training run.
-        """
-        numpy_state = np.random.get_state()  # SB3's sample() and _get_samples draw from NumPy's global RNG
-        with seeded(int(self._diagnostic_rng.integers(2**62)), self.device):
-            np.random.seed(int(self._diagnostic_rng.integers(2**32)))
-            if real_only:
-                rows = self._diagnostic_rng.integers(0, self.real_buffer.size(), size=batch_size)
-                data = self.real_buffer._get_samples(rows, env=self._vec_normalize_env)
-                data = self.replay_rewards.rewrite(data, self.real_buffer, self._vec_normalize_env)
-            else:
-                data = self.replay_buffer.sample(batch_size, env=self._vec_normalize_env)
-            next_actions, next_log_prob = self.actor.action_log_prob(data.next_observations)
-            next_q = th.min(th.cat(self.critic_target(data.next_observations, next_actions), dim=1), dim=1, keepdim=True)[0]
-            ent_coef = self.ent_coef_tensor if self.log_ent_coef is None else th.exp(self.log_ent_coef)
-            # r̂ + γ(1 − d)(min Q_target(s', a') − α log π(a'|s'))
-            target = data.rewards + (1 - data.dones) * self.gamma * (next_q - ent_coef * next_log_prob.reshape(-1, 1))
-            current = self.critic(data.observations, data.actions)
-        np.random.set_state(numpy_state)
-        critic_loss = 0.5 * sum(th.nn.functional.mse_loss(q, target) for q in current)
-        return float(critic_loss), float(th.cat(current, dim=1).mean())
-
-    def _setup_learn(self, total_timesteps: int, callback: MaybeCallback = None, reset_num_timesteps: bool = True,
-                     tb_log_name: str = "run", progress_bar: bool = False) -> tuple[int, BaseCallback]:  # fmt: skip
+    def _setup_learn(
+        self,
+        total_timesteps: int,
+        callback: MaybeCallback = None,
+        reset_num_timesteps: bool = True,
+        tb_log_name: str = "run",
+        progress_bar: bool = False,
+    ) -> tuple[int, BaseCallback]:
         if reset_num_timesteps:  # a whole run: its budget must be asked within it (a run in parts is not checked)
             schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session, self.max_feedback)
-            remaining = self.max_feedback - self.feedback_asked
-            next_step = max(0, self.next_feedback_step - self.num_timesteps)
-            schedule.check(self.feedback_sessions + 1, next_step, self.feedback_interval, total_timesteps, remaining)
+            remaining = self.max_feedback - self.phase.asked
+            next_step = max(0, self.phase.next_step - self.num_timesteps)
+            schedule.check(self.phase.sessions + 1, next_step, self.feedback_interval, total_timesteps, remaining)
             if self.num_timesteps > 0:
                 self._shift_schedules(-self.num_timesteps)  # the step count restarts at 0: keep the remaining distances
         if reset_num_timesteps or self._last_obs is None:
             # SB3 resets the env now: the episode in progress ends here, or a query segment could span two episodes
             self.real_buffer.end_episodes()
+        tb_log_name = type(self).__name__ if tb_log_name == "SAC" else tb_log_name  # "PEBBLE" or "PRIDE", not SAC's
         return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
 
     def _shift_schedules(self, steps: int) -> None:
-        self.next_feedback_step = max(0, self.next_feedback_step + steps)
+        self.phase.shift(steps)
         if self.feedback.pending is not None:
             self.feedback.pending.published_step += steps
 
@@ -318,13 +298,13 @@ class PEBBLE(AtomicSaves, SAC):
         :return: False when no segment fits in the stored episodes yet (nothing was asked)
         """
         self.feedback.resolve(self.teacher, self.seed)
-        sampler, session = self.query_sampler, self.feedback_sessions + 1
+        sampler, session = self.query_sampler, self.phase.sessions + 1
         returns, labeled = self.reward_model.member_segment_returns, self.preferences.inputs
         schedule = FeedbackSchedule(self.feedback_schedule, self.queries_per_session, self.max_feedback)
         size, selection = schedule.size(session, self.num_timesteps, self._total_timesteps), self.query_selection
         return self.feedback.publish(
-            self.feedback.context(session, self.feedback_asked, self.max_feedback),
-            n_queries=min(size, self.max_feedback - self.feedback_asked),
+            self.feedback.context(session, self.phase.asked, self.max_feedback),
+            n_queries=min(size, self.max_feedback - self.phase.asked),
             choose=lambda n, asked: sampler.choose(
                 self.real_buffer, n, self.preference_rng, returns, labeled, asked, first=session == 1, selection=selection
             ),
@@ -342,18 +322,14 @@ class PEBBLE(AtomicSaves, SAC):
         labeled = ~np.isnan(answers.labels)
         self.preferences.add(answers.inputs[labeled], answers.labels[labeled])
         # skipped queries count as asked (they cost the teacher's time) but not as labels
-        self.feedback_asked += len(answers.labels)
-        self.feedback_labeled += int(labeled.sum())
-        self.feedback_sessions += 1
-        self.logger.record("feedback/asked", self.feedback_asked)
-        self.logger.record("feedback/labeled", self.feedback_labeled)
-        self.logger.record("feedback/sessions", self.feedback_sessions)
+        self.phase.close_session(len(answers.labels), int(labeled.sum()))
+        for key, value in (("asked", self.phase.asked), ("labeled", self.phase.labeled), ("sessions", self.phase.sessions)):
+            self.logger.record(f"feedback/{key}", value)
         if self.asynchronous_feedback:  # how long the agent trained on the older reward while the session was answered
-            self.steps_awaiting_feedback += self.num_timesteps - answers.published_step
             self.logger.record("feedback/steps_awaiting", self.num_timesteps - answers.published_step)
             self.logger.record("feedback/seconds_awaiting", time.monotonic() - answers.published_time)
         if isinstance(self.feedback.teacher, InteractiveTeacher):
-            self.feedback.teacher.show_progress(self.feedback_asked, self.max_feedback)
+            self.feedback.teacher.show_progress(self.phase.asked, self.max_feedback)
         if len(self.preferences) > 0:
             self.learn_reward()
 
@@ -366,18 +342,17 @@ class PEBBLE(AtomicSaves, SAC):
             if value is not None:
                 self.logger.record(f"reward_model/{key}", value)
         self.logger.record("reward_model/true_reward_corr", correlation)
-        self.reward_learner.record(self.feedback_sessions, self.num_timesteps, len(self.preferences), report, correlation)
+        self.reward_learner.record(self.phase.sessions, self.num_timesteps, len(self.preferences), report, correlation)
         self.feedback.show_reward_history()  # the learner's history is the feedback loop's reward_history
         if self.verbose > 0:
             print(
-                f"feedback session {self.feedback_sessions} at step {self.num_timesteps}: "
-                f"{self.feedback_labeled}/{self.feedback_asked} labeled, reward-model accuracy {report.accuracy:.3f}, "
+                f"feedback session {self.phase.sessions} at step {self.num_timesteps}: "
+                f"{self.phase.labeled}/{self.phase.asked} labeled, reward-model accuracy {report.accuracy:.3f}, "
                 f"corr(r_hat, r_true) {correlation:.3f}"
             )
 
     def relabel(self) -> None:
         """Every stored reward becomes r̂ of the current reward model (Algorithm 1, line 20)."""
-        self.replay_rewards.learned = len(self.preferences) > 0
         self.real_buffer.relabel(self.reward_learner.predict)
 
     def end_pretraining(self) -> None:
@@ -386,27 +361,11 @@ class PEBBLE(AtomicSaves, SAC):
         B-Pref's update_after_reset); it is reset and trained ``critic_reset_updates`` steps on r̂, as PEBBLE does
         (with ``gradient_steps=0``, where ``learn()`` makes no gradient step at all, it is only reset).
         """
-        self.replay_rewards.pretraining = False
-        self.reset_critic()
+        reset_critic(self)
         updates = self.pretraining_kwargs["critic_reset_updates"]
         if self.gradient_steps != 0 and updates > 0:
             self.train(gradient_steps=updates, batch_size=self.batch_size)
             self.policy.set_training_mode(False)  # back to rollout mode
-
-    def reset_critic(self) -> None:
-        """
-        PEBBLE's reset after pre-training (B-Pref re-creates the critic): fresh Q-networks and, unless it is the
-        actor's (``share_features_extractor=True``), a fresh features extractor; the target copied from them;
-        fresh Adam state. The actor and the entropy coefficient keep what pre-training taught them.
-        """
-        shared = self.critic.features_extractor if self.critic.share_features_extractor else None
-        kept = set() if shared is None else {id(module) for module in shared.modules()}
-        for module in self.critic.modules():
-            reset_parameters = getattr(module, "reset_parameters", None)
-            if callable(reset_parameters) and id(module) not in kept:
-                reset_parameters()
-        self.critic_target.load_state_dict(self.critic.state_dict())
-        self.critic.optimizer.state.clear()
 
     # saving and loading ------------------------------------------------------------------------------------------------
     def save_reward_model(self, path: str | os.PathLike) -> None:
@@ -417,8 +376,7 @@ class PEBBLE(AtomicSaves, SAC):
         super().load_replay_buffer(path, truncate_last_traj)
         if not isinstance(self.replay_buffer, self.buffer_class):
             raise ValueError(f"{path} holds a {type(self.replay_buffer).__name__}, not a {self.buffer_class.__name__}")
-        self.real_buffer.reward_source = self.replay_rewards
-        self.feedback.attach(self.teacher, self.seed, self.env, self.real_buffer, (self.feedback_asked, self.max_feedback))
+        self.attach_parts()
 
     def _excluded_save_params(self) -> list[str]:
         # the parts are made again from the settings; the networks are saved as state dicts
@@ -430,11 +388,3 @@ class PEBBLE(AtomicSaves, SAC):
         if self.consistency_model is not None:
             state_dicts += ["consistency_model", "consistency_model.optimizer"]
         return state_dicts, variables
-
-    def learn(self: SelfPEBBLE, total_timesteps: int, callback: MaybeCallback = None, log_interval: int = 4,
-              tb_log_name: str | None = None, reset_num_timesteps: bool = True,
-              progress_bar: bool = False) -> SelfPEBBLE:  # fmt: skip
-        """SB3's ``learn``, logged under the algorithm's own name ("PEBBLE" or "PRIDE") unless ``tb_log_name`` says."""
-        return super().learn(
-            total_timesteps, callback, log_interval, tb_log_name or type(self).__name__, reset_num_timesteps, progress_bar
-        )

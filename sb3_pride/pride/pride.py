@@ -116,7 +116,7 @@ class PRIDE(PEBBLE):
         self.first_generation_step: int | None = None
         self.diffusion_retrains = 0
         # the first retrain comes right after the first reward learning (or at synthetic_start, if later)
-        self.next_diffusion_step = max(self.next_feedback_step, synthetic_start)
+        self.next_diffusion_step = max(self.phase.next_step, synthetic_start)
 
         if _init_setup_model:
             self._setup_model()
@@ -128,6 +128,10 @@ class PRIDE(PEBBLE):
         self.generator = TransitionGenerator(obs_dim, action_dim, **{**options, **self.generator_kwargs})
         if self.model_terminals is not None:  # loading a model that was retrained: rebuild before its weights load
             self.generator.build(self.model_terminals)
+
+    def attach_parts(self) -> None:
+        super().attach_parts()
+        self.replay_buffer.ratio_source = self.current_synthetic_ratio  # u as ramped, asked at each minibatch
 
     def _shift_schedules(self, steps: int) -> None:
         super()._shift_schedules(steps)
@@ -143,10 +147,10 @@ class PRIDE(PEBBLE):
     def train(self, gradient_steps: int, batch_size: int = 64) -> None:
         # Algorithm 1, lines 34–37: each SAC minibatch of M rows holds round(u·M) synthetic and M − round(u·M) real
         # transitions (DualReplayBuffer.sample); real only until the first generation, then u ramps up over
-        # synthetic_ramp steps. M = B (the paper) or, with synthetic_on_top, B / (1 − u) with u as ramped so far
-        self.replay_buffer.synthetic_ratio = self.current_synthetic_ratio()
+        # synthetic_ramp steps (the buffer asks current_synthetic_ratio). M = B (the paper) or, with synthetic_on_top,
+        # B / (1 − u) with u as ramped so far
         minibatch_size = self.minibatch_size(batch_size)
-        super().train(gradient_steps, minibatch_size)  # PEBBLE's critic diagnostics too see minibatches of M rows
+        super().train(gradient_steps, minibatch_size)
         self.logger.record("train/synthetic_per_batch", self.replay_buffer.n_synthetic(minibatch_size))
 
     def minibatch_size(self, batch_size: int) -> int:
@@ -178,7 +182,7 @@ class PRIDE(PEBBLE):
         """
         return (
             self.synthetic_ratio > 0
-            and not self.in_pretraining
+            and not self.phase.pretraining
             and self.num_timesteps >= self.next_diffusion_step
             and self.real_buffer.size() >= self.batch_size
         )
