@@ -221,7 +221,7 @@ def test_the_probe_reads_that_the_server_keeps_its_limits():
     threads stay within the limit."""
     probe = Path(__file__).resolve().parent.parent / "benchmarks" / "web_probe.py"
     settings = (
-        "--dripping 5 --slow 40 --max-connections 10 --attack 1 --bodies 3 --pairs 6 --segment-length 4 --read-timeout 1"
+        "--dripping 5 --slow 100 --max-connections 10 --attack 1 --bodies 3 --pairs 6 --segment-length 4 --read-timeout 1"
     )
     done = subprocess.run([sys.executable, str(probe), *settings.split()], capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -239,4 +239,4 @@ def test_the_probe_reads_that_the_server_keeps_its_limits():
     assert epoll.split(" / ")[1] == "0"
     assert rows["closed by the server"][0].startswith("5 of 5")
     before, peak, after = map(int, rows["child threads: before / peak / after"][0].split(" / "))
-    assert peak <= before + 10 + 5 and after == before
+    assert peak <= before + 40 and after == before  # 10 open, some closed ones ending; 100 without the limit

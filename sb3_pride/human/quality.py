@@ -38,6 +38,9 @@ FLAG_MIN_KNOWN = 8
 LOGGED = ("answers", "known_answers", "known_answer_agreement", "compared_answers", "pairwise_agreement")
 #: a copy of a known-answer clip: the share of its 16 x 16 blocks shifted by one level, in each frame
 DITHERED_BLOCKS = 0.25
+#: known pairs whose clips are copied ahead of need (one copy each; another is made as one is shown): what copying
+#: costs is bounded by the questions shown, not by the pairs known
+COPIES_AHEAD = 32
 
 
 def recode_clip(source: Path, target: Path, rng: np.random.Generator) -> None:
@@ -101,6 +104,9 @@ class Quality:
         self.clips: Clips | None = None
         self._rng = random.Random(seed)
         self._copies_rng = np.random.default_rng()  # dithers: fresh entropy, never the seed's (no copy is another's)
+        self._copying: set[str] = set()  # pairs whose copy is being made
+        self._uncopyable: set[str] = set()  # pairs whose clips could not be copied: never shown
+        self._stock_rng = random.Random(seed)  # which pairs are copied ahead (the draws' own sequence left as it was)
         self._lock = threading.RLock()
         self._report_lock = threading.Lock()
         self._stats: dict[str, dict[str, Any]] | None = None  # agreement(), until the next answer
@@ -126,8 +132,8 @@ class Quality:
 
     def add_known(self, known: KnownPair) -> None:
         """
-        Keep a known-answer pair (once; the oldest are dropped beyond ``KNOWN_POOL_SIZE``), and have a copy of its clips
-        made for the first question that shows it.
+        Keep a known-answer pair (once; the oldest are dropped beyond ``KNOWN_POOL_SIZE``); with ``clips``, copies of
+        clips are made ahead for up to ``COPIES_AHEAD`` pairs.
         """
         with self._lock:
             if any(entry.pair == known.pair for entry in self.known):
@@ -137,21 +143,39 @@ class Quality:
                 self._remove_copies(dropped.copies)
                 dropped.copies.clear()
             del self.known[:-KNOWN_POOL_SIZE]
-        self._copy(known)
+            self._copy_ahead()
 
-    def _copy(self, known: KnownPair) -> None:
-        """Have a copy of ``known``'s clips made, in the clips' render thread, after the clips being rendered."""
-        if self.clips is not None:
+    def _copy_ahead(self) -> None:
+        """Have copies made (in the clips' render thread, after the clips being rendered) until ``COPIES_AHEAD`` pairs
+        have one ready or coming, for pairs drawn at random among those without."""
+        if self.clips is None:
+            return
+        stocked = {known.pair for known in self.known if known.copies} | self._copying
+        bare = [known for known in self.known if known.pair not in stocked and known.pair not in self._uncopyable]
+        for known in self._stock_rng.sample(bare, min(len(bare), max(COPIES_AHEAD - len(stocked), 0))):
+            self._copying.add(known.pair)
             self.clips.thread.submit(self._make_copy, known)
 
     def _make_copy(self, known: KnownPair) -> None:
         assert self.clips is not None
+        try:
+            self._copy_clips(known)
+        finally:
+            with self._lock:
+                self._copying.discard(known.pair)
+
+    def _copy_clips(self, known: KnownPair) -> None:
+        assert self.clips is not None
+        if self.clips.renderer is None:  # closed: its folder may be gone
+            return
         folder, copy = self.clips.folder(), uuid.uuid4().hex[:12]
         try:
             for side, source in zip(("left", "right"), known.files, strict=True):
                 recode_clip(folder / source, folder / f"{copy}-{side}.mp4", self._copies_rng)
         except Exception as error:  # the pair is not shown; the session goes on
             self._remove_copies([copy])
+            with self._lock:
+                self._uncopyable.add(known.pair)
             print(
                 f"WebTeacher: warning: a known-answer pair's clips could not be copied, it is not shown: {error}", flush=True
             )
@@ -207,8 +231,8 @@ class Quality:
         session's queries that may still be handed to them, never a majority they were part of. Only one person alone
         (no ``annotators``) is shown, when no other is left, a true-reward pair they answered in an earlier session.
         Its id is its own, its clips' addresses have the shape of every other's, and (with ``clips``) its clips are a
-        copy of the pair's made for it alone (``recode_clip``; a pair waits for its copy): nothing on the page, nor in
-        the bytes of its clips, tells it apart.
+        copy of the pair's made for it alone (``recode_clip``; only pairs with a copy ready are drawn,
+        ``COPIES_AHEAD``): nothing on the page, nor in the bytes of its clips, tells it apart.
         """
         with self._lock:
             fits: dict[str, list[KnownPair]] = {"fresh": [], "again": []}
@@ -223,7 +247,7 @@ class Quality:
                 question = Question(uuid.uuid4().hex[:12], known.inputs, known.files, known.answer, True, pair=known.pair)
             else:  # its copy's files are named after it, as a query's are
                 question = Question(known.copies.pop(0), known.inputs, known=known.answer, ready=True, pair=known.pair)
-                self._copy(known)  # for the next question that shows it
+                self._copy_ahead()  # for the questions to come
             session.known[question.id] = question
             return question
 
