@@ -266,11 +266,11 @@ def screen_one(
     """
     import torch as th
 
-    from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
+    from sb3_pride.reward.consistency import ConsistencyModel, DynamicsConsistency
     from sb3_pride.common.queries import sample_segment_pairs
     from sb3_pride.common.query_selection import pair_features, select_queries
-    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
-    from sb3_pride.common.reward_options import PseudoLabels, RobustLabels
+    from sb3_pride.reward.ensemble import PreferenceDataset, RewardEnsemble
+    from sb3_pride.reward.options import PseudoLabels, RobustLabels
     from sb3_pride.common.teachers import InteractiveTeacher, make_teacher
 
     config = dict(config)
@@ -423,7 +423,7 @@ def screen(args: argparse.Namespace) -> dict[str, Any]:
     recorded = json.loads(provenance_file.read_text()) if provenance_file.exists() else {}
     _, kwargs = yaml_entry("cpu", "pebble", TASK)
     from sb3_pride import PEBBLE
-    from sb3_pride.common.reward_learner import RewardLearner
+    from sb3_pride.reward.learner import RewardLearner
 
     defaults = {p.name: p.default for p in inspect.signature(PEBBLE.__init__).parameters.values()}
     learner = {**RewardLearner.settings(), **(kwargs.get("reward_kwargs") or {})}

@@ -206,7 +206,7 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
         defaults["generator_kwargs"] = {p.name: p.default for p in parameters if p.default is not p.empty}
     if algo != "sac":  # the structured settings spelled out, and what True (or a partial dict) means for each option
         from sb3_pride.common.queries import QuerySampler
-        from sb3_pride.common.reward_learner import RewardLearner
+        from sb3_pride.reward.learner import RewardLearner
         from sb3_pride.pebble.settings import PRETRAINING_DEFAULTS
 
         parameters = inspect.signature(QuerySampler.__init__).parameters.values()
@@ -219,7 +219,7 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
             p.name: p.default for p in parameters if p.default is not p.empty and p.name != "selection"
         }
         defaults["pretraining_kwargs"] = dict(PRETRAINING_DEFAULTS)
-        from sb3_pride.common.reward_options import REWARD_OPTIONS
+        from sb3_pride.reward.options import REWARD_OPTIONS
 
         defaults["option_settings"] = {name: dataclasses.asdict(cls()) for name, cls in REWARD_OPTIONS.items()}
     return defaults

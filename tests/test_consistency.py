@@ -3,9 +3,9 @@ import pytest
 import torch as th
 
 from sb3_pride import PEBBLE, PRIDE
-from sb3_pride.common.consistency import ConsistencyModel, DynamicsConsistency
+from sb3_pride.reward.consistency import ConsistencyModel, DynamicsConsistency
 from sb3_pride.common.queries import stored_transitions
-from sb3_pride.common.reward_model import RewardEnsemble
+from sb3_pride.reward.ensemble import RewardEnsemble
 from sb3_pride.common.utils import merge_kwargs
 
 OBS, ACT = 8, 2

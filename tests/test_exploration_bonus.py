@@ -9,7 +9,7 @@ import torch as th
 from stable_baselines3.common.save_util import load_from_pkl
 
 from sb3_pride import PEBBLE, PRIDE
-from sb3_pride.common.reward_options import ExplorationBonus
+from sb3_pride.reward.options import ExplorationBonus
 from sb3_pride.common.utils import merge_kwargs
 
 

@@ -178,7 +178,7 @@ def test_bad_input_names_the_parameter(tiny_kwargs):
 
 
 def test_the_reward_learner_holds_each_options_settings(tiny_kwargs):
-    from sb3_pride.common.consistency import DynamicsConsistency
+    from sb3_pride.reward.consistency import DynamicsConsistency
 
     kwargs = merge_kwargs(tiny_kwargs, dict(reward_kwargs=dict(dynamics_consistency={"epochs": 3})))
     model = PEBBLE("MlpPolicy", "Pendulum-v1", **kwargs)

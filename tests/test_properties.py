@@ -35,7 +35,7 @@ from sb3_pride.pride.generator import FILTERS, GENERATIONS
 from sb3_pride.common.journal import PreferenceJournal
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.query_selection import QUERY_SELECTIONS
-from sb3_pride.common.reward_learner import RewardLearner
+from sb3_pride.reward.learner import RewardLearner
 from sb3_pride.common.utils import merge_kwargs
 
 #: cheap models: Pendulum (200-step episodes), tiny networks, small buffers

@@ -7,14 +7,14 @@ from scipy.stats import spearmanr
 
 from sb3_pride import PEBBLE, ScriptedTeacher
 from sb3_pride.common.queries import SegmentPairs
-from sb3_pride.common.reward_model import (
+from sb3_pride.reward.ensemble import (
     PreferenceDataset,
     RewardEnsemble,
     check_temporal_crop,
     crop_pairs,
     preference_loss,
 )
-from sb3_pride.common.reward_options import PseudoLabels, RobustLabels
+from sb3_pride.reward.options import PseudoLabels, RobustLabels
 from sb3_pride.common.utils import merge_kwargs
 
 

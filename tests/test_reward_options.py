@@ -11,7 +11,7 @@ import torch as th
 from stable_baselines3.common.logger import configure
 
 from sb3_pride import PEBBLE
-from sb3_pride.common.reward_options import REWARD_OPTIONS, RewardOption, register_reward_option
+from sb3_pride.reward.options import REWARD_OPTIONS, RewardOption, register_reward_option
 from sb3_pride.common.utils import merge_kwargs
 
 

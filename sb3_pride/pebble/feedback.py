@@ -26,7 +26,7 @@ if TYPE_CHECKING:
     from stable_baselines3.common.vec_env import VecEnv
 
     from sb3_pride.common.buffers import PreferenceReplayBuffer
-    from sb3_pride.common.reward_model import PreferenceDataset
+    from sb3_pride.reward.ensemble import PreferenceDataset
 
 
 @dataclass

@@ -18,10 +18,11 @@ from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.env_checks import check_env, env_id
 from sb3_pride.common.journal import AtomicSaves, JournalBook, journal_header
-from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.reward.learned_reward import LearnedReward
 from sb3_pride.common.queries import QuerySampler
-from sb3_pride.common.reward_learner import ReplayRewards, RewardLearner
-from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
+from sb3_pride.pebble.replay_rewards import ReplayRewards
+from sb3_pride.reward.learner import RewardLearner
+from sb3_pride.reward.ensemble import PreferenceDataset, RewardEnsemble
 from sb3_pride.common.teachers import InteractiveTeacher, Teacher
 from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule

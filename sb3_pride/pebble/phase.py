@@ -4,7 +4,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from sb3_pride.common.reward_model import PreferenceDataset
+    from sb3_pride.reward.ensemble import PreferenceDataset
 
 
 @dataclass

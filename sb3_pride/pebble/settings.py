@@ -9,10 +9,10 @@ import numpy as np
 from stable_baselines3.common.buffers import ReplayBuffer
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_pride.common.consistency import DynamicsConsistency
+from sb3_pride.reward.consistency import DynamicsConsistency
 from sb3_pride.common.journal import find_journal
 from sb3_pride.common.queries import QuerySampler
-from sb3_pride.common.reward_learner import RewardLearner
+from sb3_pride.reward.learner import RewardLearner
 from sb3_pride.common.utils import check_non_negative_ints, check_positive_ints, make_option
 from sb3_pride.pebble.feedback import FeedbackSchedule
 from sb3_pride.pebble.earlier_versions import RENAMED_PEBBLE_SETTINGS, refuse_earlier_versions, renamed_settings_error

@@ -13,7 +13,7 @@ from stable_baselines3.common.utils import get_device
 from torch import nn
 
 from sb3_pride.common.entropy import knn_distances
-from sb3_pride.common.reward_model import EnsembleMLP
+from sb3_pride.reward.ensemble import EnsembleMLP
 from sb3_pride.common.utils import check_positive_ints, seeded
 
 

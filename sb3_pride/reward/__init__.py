@@ -4,7 +4,7 @@ given to any SB3 algorithm (``LearnedRewardWrapper``, ``VecLearnedReward``) and 
 (``reward_report``). The command line: ``python -m sb3_pride.reward fit|report ...``.
 """
 
-from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.reward.learned_reward import LearnedReward
 from sb3_pride.reward.fit import FitReport, fit_reward, preference_accuracy
 from sb3_pride.reward.report import EpisodeRewards, episode_rewards, reward_report
 from sb3_pride.reward.wrappers import LearnedRewardWrapper, RewardNormalizer, VecLearnedReward

@@ -20,7 +20,7 @@ import gymnasium as gym
 from stable_baselines3.common.save_util import load_from_zip_file
 
 import sb3_pride  # noqa: F401 (registers the sb3_pride/... envs)
-from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.reward.learned_reward import LearnedReward
 from sb3_pride.reward.fit import fit_reward
 from sb3_pride.reward.report import reward_report
 

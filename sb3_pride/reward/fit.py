@@ -13,9 +13,9 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_pride.common.journal import PreferenceJournal, journal_header
-from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.reward.learned_reward import LearnedReward
 from sb3_pride.common.priors import read_prior_preferences
-from sb3_pride.common.reward_model import PreferenceDataset
+from sb3_pride.reward.ensemble import PreferenceDataset
 
 
 #: the most epochs of a fit from journals alone, unless ``reward_kwargs`` says

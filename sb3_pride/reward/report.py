@@ -11,7 +11,7 @@ from pathlib import Path
 import gymnasium as gym
 import numpy as np
 
-from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.reward.learned_reward import LearnedReward
 
 #: ``policy(observation) -> action``: how the episodes are played (e.g. a model's deterministic ``predict``)
 Policy = Callable[[np.ndarray], np.ndarray]

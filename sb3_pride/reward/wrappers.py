@@ -12,7 +12,7 @@ from stable_baselines3.common.running_mean_std import RunningMeanStd
 from stable_baselines3.common.vec_env import VecEnv, VecEnvWrapper
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvStepReturn
 
-from sb3_pride.common.learned_reward import LearnedReward
+from sb3_pride.reward.learned_reward import LearnedReward
 
 
 def as_learned_reward(reward: LearnedReward | str | os.PathLike) -> LearnedReward:

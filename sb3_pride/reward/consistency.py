@@ -12,14 +12,14 @@ import torch as th
 from torch.nn import functional as F
 
 from sb3_pride.common.queries import stored_transitions
-from sb3_pride.common.reward_model import EnsembleMLP, RewardEnsemble
-from sb3_pride.common.reward_options import RewardOption
+from sb3_pride.reward.ensemble import EnsembleMLP, RewardEnsemble
+from sb3_pride.reward.options import RewardOption
 
 if TYPE_CHECKING:
     from sb3_pride.common.buffers import PreferenceReplayBuffer
     from sb3_pride.common.queries import QuerySampler
-    from sb3_pride.common.reward_learner import RewardLearner
-    from sb3_pride.common.reward_model import PreferenceDataset
+    from sb3_pride.reward.learner import RewardLearner
+    from sb3_pride.reward.ensemble import PreferenceDataset
 
 CONSISTENCY_OPTIMIZERS = ("adam", "sgd")
 

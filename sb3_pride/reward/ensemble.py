@@ -10,10 +10,7 @@ from stable_baselines3.common.utils import get_device
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_pride.common.reward_options import ExplorationBonus, PseudoLabels, RewardOption, RobustLabels
-
-#: where saved models (0.1 to 0.3) pickled the options' classes: unpickling looks them up here
-PICKLED_NAMES = (ExplorationBonus, PseudoLabels, RobustLabels)
+from sb3_pride.reward.options import PseudoLabels, RewardOption
 
 
 def preference_loss(returns: th.Tensor, labels: th.Tensor) -> th.Tensor:

@@ -12,7 +12,7 @@ from gymnasium import spaces
 
 from sb3_pride.common.env_checks import env_id
 from sb3_pride.common.journal import atomic_write_path
-from sb3_pride.common.reward_learner import RewardLearner
+from sb3_pride.reward.learner import RewardLearner
 from sb3_pride.common.utils import plain
 
 #: what a reward file says it is (``LearnedReward.save``)

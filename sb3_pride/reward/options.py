@@ -19,8 +19,8 @@ from sb3_pride.common.utils import check_real
 if TYPE_CHECKING:
     from sb3_pride.common.buffers import PreferenceReplayBuffer
     from sb3_pride.common.queries import QuerySampler
-    from sb3_pride.common.reward_learner import RewardLearner
-    from sb3_pride.common.reward_model import PreferenceDataset, RewardEnsemble
+    from sb3_pride.reward.learner import RewardLearner
+    from sb3_pride.reward.ensemble import PreferenceDataset, RewardEnsemble
 
 
 class RewardOption:
@@ -269,7 +269,7 @@ def register_reward_option(name: str, option_class: type[RewardOption]) -> None:
         raise TypeError(f"register_reward_option: {name!r} must be a RewardOption subclass, got {option_class!r}")
     if not dataclasses.is_dataclass(option_class):
         raise TypeError(f"register_reward_option: {option_class.__name__} must be a dataclass of its settings")
-    from sb3_pride.common.reward_learner import RewardLearner
+    from sb3_pride.reward.learner import RewardLearner
 
     if name in RewardLearner.own_settings():
         raise ValueError(f"register_reward_option: {name!r} is a setting of RewardLearner itself")
