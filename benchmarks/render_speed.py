@@ -79,8 +79,10 @@ def recorded_row(env_id: str, steps: int, repeats: int, segment_length: int, run
         env.record_frames(recording)
         plain = gym.make(env_id, render_mode="rgb_array")
         rendering = RenderEveryStep(gym.make(env_id, render_mode="rgb_array"))
-        passes = [(seconds_per_step(plain, steps), seconds_per_step(rendering, steps), seconds_per_step(env, steps))
-                  for _ in range(repeats)]  # fmt: skip
+        passes = [
+            (seconds_per_step(plain, steps), seconds_per_step(rendering, steps), seconds_per_step(env, steps))
+            for _ in range(repeats)
+        ]
         bare, rendered, recorded = np.median(passes, axis=0)
         frame_bytes = recording.bytes / (steps * repeats)
         episode_steps = env.spec.max_episode_steps if env.spec is not None and env.spec.max_episode_steps else steps

@@ -207,7 +207,7 @@ def algorithm_defaults(algo: str) -> dict[str, Any]:
     if algo != "sac":  # the structured settings spelled out, and what True (or a partial dict) means for each option
         from sb3_pride.common.queries import QuerySampler
         from sb3_pride.reward.learner import RewardLearner
-        from sb3_pride.pebble.settings import PRETRAINING_DEFAULTS
+        from sb3_pride.pebble.checks import PRETRAINING_DEFAULTS
 
         parameters = inspect.signature(QuerySampler.__init__).parameters.values()
         defaults["reward_kwargs"] = RewardLearner.settings()

@@ -8,7 +8,7 @@ Environments for preference-based RL benchmarks, registered with gymnasium on ``
   read at episode end to report a success rate, e.g. ``sb3_pride/button-press-v3``.
 
 Both record the simulator state of every step in ``info["render_state"]`` once a ``WebTeacher`` asks for it
-(``sb3_pride.common.render_states.RenderStates``), so that a person can watch the segments.
+(``sb3_pride.render_states.RenderStates``), so that a person can watch the segments.
 
 dm_control and Meta-World are imported only when an environment is made.
 """
@@ -20,25 +20,60 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from sb3_pride.common.render_states import RenderStates
+from sb3_pride.render_states import RenderStates
 
 NAMESPACE = "sb3_pride"
 
 #: the DMC suite tasks (shimmy's list, copied so that registration needs no dm_control import)
 DM_CONTROL_TASKS = (
-    "acrobot-swingup", "acrobot-swingup_sparse", "ball_in_cup-catch", "cartpole-balance", "cartpole-balance_sparse",
-    "cartpole-swingup", "cartpole-swingup_sparse", "cheetah-run", "finger-spin", "finger-turn_easy",
-    "finger-turn_hard", "fish-upright", "fish-swim", "hopper-stand", "hopper-hop", "humanoid-stand", "humanoid-walk",
-    "humanoid-run", "manipulator-bring_ball", "pendulum-swingup", "point_mass-easy", "reacher-easy", "reacher-hard",
-    "swimmer-swimmer6", "swimmer-swimmer15", "walker-stand", "walker-walk", "walker-run", "quadruped-walk",
-    "quadruped-run", "quadruped-escape", "quadruped-fetch", "dog-stand", "dog-walk", "dog-trot", "dog-run",
+    "acrobot-swingup",
+    "acrobot-swingup_sparse",
+    "ball_in_cup-catch",
+    "cartpole-balance",
+    "cartpole-balance_sparse",
+    "cartpole-swingup",
+    "cartpole-swingup_sparse",
+    "cheetah-run",
+    "finger-spin",
+    "finger-turn_easy",
+    "finger-turn_hard",
+    "fish-upright",
+    "fish-swim",
+    "hopper-stand",
+    "hopper-hop",
+    "humanoid-stand",
+    "humanoid-walk",
+    "humanoid-run",
+    "manipulator-bring_ball",
+    "pendulum-swingup",
+    "point_mass-easy",
+    "reacher-easy",
+    "reacher-hard",
+    "swimmer-swimmer6",
+    "swimmer-swimmer15",
+    "walker-stand",
+    "walker-walk",
+    "walker-run",
+    "quadruped-walk",
+    "quadruped-run",
+    "quadruped-escape",
+    "quadruped-fetch",
+    "dog-stand",
+    "dog-walk",
+    "dog-trot",
+    "dog-run",
     "dog-fetch",
-)  # fmt: skip
+)
 
 #: Meta-World tasks of the paper (and PEBBLE's) experiments; any other v3 name works with ``make_metaworld``
 METAWORLD_TASKS = (
-    "button-press-v3", "door-open-v3", "sweep-into-v3", "drawer-open-v3", "window-open-v3", "hammer-v3",
-)  # fmt: skip
+    "button-press-v3",
+    "door-open-v3",
+    "sweep-into-v3",
+    "drawer-open-v3",
+    "window-open-v3",
+    "hammer-v3",
+)
 
 METAWORLD_EPISODE_STEPS = 500
 

@@ -14,7 +14,7 @@ import torch as th
 
 from sb3_pride.pebble.earlier_versions import RENAMED_GENERATOR_SETTINGS as RENAMED_SETTINGS
 from sb3_pride.pebble.earlier_versions import RENAMED_PEBBLE_SETTINGS
-from sb3_pride.pebble.settings import STRUCTURED_SETTINGS as STRUCTURED
+from sb3_pride.pebble.checks import STRUCTURED_SETTINGS as STRUCTURED
 
 from sb3_pride.zoo import hyperparams_dir, model_kwargs
 

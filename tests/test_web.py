@@ -45,6 +45,28 @@ def request(teacher: WebTeacher, path: str, body: dict | bytes | None = None, he
     return response.status_code, dict(response.headers), response.get_data()
 
 
+def page_state(teacher: WebTeacher, annotator: str | None = None) -> dict:
+    """What ``annotator``'s page shows (it hands them questions), through the HTTP API as the browser asks it."""
+    headers = {} if annotator is None else {"X-Annotator-Token": token(teacher, annotator)}
+    status, _, body = request(teacher, "/api/state", headers=headers)
+    assert status == 200, body
+    return json.loads(body)
+
+
+def answer(teacher: WebTeacher, question, label, annotator: str | None = None) -> tuple[int, str]:
+    """(status, "recorded" or why not) of ``annotator``'s answer, sent as the page sends it."""
+    headers = {} if annotator is None else {"X-Annotator-Token": token(teacher, annotator)}
+    status, _, body = request(teacher, "/api/answer", {"id": question, "label": label}, headers)
+    return status, "recorded" if status == 200 else json.loads(body)["error"]
+
+
+def undo(teacher: WebTeacher, annotator: str | None = None) -> tuple[int, str]:
+    """(status, the question taken back or why not) of ``annotator``'s undo, sent as the page sends it."""
+    headers = {} if annotator is None else {"X-Annotator-Token": token(teacher, annotator)}
+    status, _, body = request(teacher, "/api/undo", {}, headers)
+    return status, json.loads(body)["undone" if status == 200 else "error"]
+
+
 class Page:
     """An annotator's page, through the HTTP API (what the browser sends)."""
 
@@ -223,16 +245,16 @@ def open_session(tmp_path):
 
 def test_bad_posts_are_refused_and_record_nothing(open_session):
     teacher = open_session
-    assert teacher.state()["query"]["id"] == "a"  # the page shows "a"
+    assert page_state(teacher)["query"]["id"] == "a"  # the page shows "a"
     for body in ({"id": "zzz", "label": 1}, {"id": "a", "label": 0.7}, {"id": "a", "label": "left"},
                  {"id": "a", "label": True}, {"id": 3, "label": 1}, {"id": "a"}, {"label": 1}):  # fmt: skip
         status, _, reply = request(teacher, "/api/answer", body)
         assert status in (400, 404) and json.loads(reply)["error"], body
     assert request(teacher, "/api/answer", b"not json")[0] == 400
     assert request(teacher, "/api/undo", {})[0] == 409  # nothing to undo yet
-    assert teacher.state()["answered"] == 0 and teacher.run.labels() == []
+    assert page_state(teacher)["answered"] == 0 and teacher.run.labels() == []
 
-    assert request(teacher, "/api/answer", {"id": "a", "label": 0.5})[0] == 200 and teacher.state()["answered"] == 1
+    assert request(teacher, "/api/answer", {"id": "a", "label": 0.5})[0] == 200 and page_state(teacher)["answered"] == 1
     assert request(teacher, "/api/answer", {"id": "a", "label": 1})[0] == 409  # answered already
     assert teacher.run.labels() == [0.5]
 
@@ -241,7 +263,7 @@ def test_bodies_too_large_or_too_deep_are_refused_and_record_nothing(open_sessio
     """A body over 64 KiB, announced or streamed in chunks (werkzeug's server terminates a chunked body itself), and
     JSON nested past the parser's depth: refused as the docs say, nothing journaled, no traceback on the console."""
     teacher = open_session
-    teacher.state()  # the page shows "a"
+    page_state(teacher)  # the page shows "a"
     padded = b'{"id": "a", "label": 1}' + b" " * MAX_BODY
     client = teacher.server.app.test_client()
     with caplog.at_level(logging.INFO):
@@ -254,7 +276,7 @@ def test_bodies_too_large_or_too_deep_are_refused_and_record_nothing(open_sessio
         for depth in (1000, 5000, MAX_BODY):
             status, _, reply = request(teacher, "/api/answer", b"[" * depth)
             assert status == 400 and "JSON" in json.loads(reply)["error"], depth
-    assert teacher.run.labels() == [] and teacher.state()["answered"] == 0
+    assert teacher.run.labels() == [] and page_state(teacher)["answered"] == 0
     assert not [record for record in caplog.records if record.levelno >= logging.ERROR]
     whole = b'{"id": "a", "label": 1}'.ljust(MAX_BODY)  # the limit itself is allowed, streamed or not
     streamed = client.post(
@@ -266,16 +288,16 @@ def test_bodies_too_large_or_too_deep_are_refused_and_record_nothing(open_sessio
 
 def test_minus_zero_is_journaled_as_zero(open_session):
     teacher = open_session
-    teacher.state()  # the page shows "a", then "b"
+    page_state(teacher)  # the page shows "a", then "b"
     assert request(teacher, "/api/answer", b'{"id": "a", "label": -0.0}')[0] == 200
-    assert teacher.answer("b", -0.0) == (200, "recorded")
+    assert answer(teacher, "b", -0.0) == (200, "recorded")
     assert teacher.run.labels() == [0, 0] and all(math.copysign(1, label) == 1 for label in teacher.run.labels())
     assert "-0.0" not in teacher.run.journal.path.read_text()
 
 
 def test_clips_are_served_with_range_requests(open_session):
     teacher = open_session
-    teacher.state()
+    page_state(teacher)
     status, headers, body = request(teacher, "/clips/a-left.mp4", headers={"Range": "bytes=100-199"})
     assert status == 206 and headers["Content-Range"] == "bytes 100-199/10240" and body == (bytes(range(256)) * 40)[100:200]
     assert headers["Content-Type"] == "video/mp4" and headers.get("Accept-Ranges") == "bytes"
@@ -287,8 +309,8 @@ def test_clips_are_served_with_range_requests(open_session):
 def test_a_timeout_skips_the_rest(open_session, capsys):
     teacher = open_session
     session = teacher.store.session
-    teacher.state()
-    assert teacher.answer("a", 1) == (200, "recorded")
+    page_state(teacher)
+    assert answer(teacher, "a", 1) == (200, "recorded")
     teacher.store.wait(timeout=0.3, reminder_interval=60, url=teacher.url)
     assert teacher.store.session is None
     assert session.queries[0].label() == 1 and np.isnan(session.queries[1].label())
@@ -305,23 +327,23 @@ def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session
 
 def test_only_the_question_shown_is_answered_and_nothing_reaches_a_closed_session(open_session):
     teacher = open_session
-    assert teacher.state()["query"]["id"] == "a"
+    assert page_state(teacher)["query"]["id"] == "a"
     status, _, reply = request(teacher, "/api/answer", {"id": "b", "label": 1})  # "a" is shown, "b" preloaded
     assert status == 403 and "not the one shown to you" in json.loads(reply)["error"]
-    assert teacher.answer("a", 0)[0] == 200
-    assert teacher.answer("b", 1)[0] == 200
+    assert answer(teacher, "a", 0)[0] == 200
+    assert answer(teacher, "b", 1)[0] == 200
     session = teacher.store.session
     teacher.store.wait(timeout=None, reminder_interval=60, url=teacher.url)  # all answered: the session closes
     assert [q.label() for q in session.queries] == [0, 1] and teacher.store.session is None
     assert request(teacher, "/api/undo", {})[0] == 409  # a late Backspace
-    assert teacher.answer("b", 0)[0] == 409
+    assert answer(teacher, "b", 0)[0] == 409
     assert teacher.run.labels() == [0, 1]
 
 
 def test_other_sites_cannot_post_or_rebind(open_session):
     """A form of another site (no JSON), a page reached under another name (DNS rebinding): refused, nothing recorded."""
     teacher = open_session
-    assert teacher.state()["query"]["id"] == "a"
+    assert page_state(teacher)["query"]["id"] == "a"
     form = {"Content-Type": "application/x-www-form-urlencoded"}
     assert request(teacher, "/api/answer", b"id=a&label=1", form)[0] == 415
     assert request(teacher, "/api/answer", b'{"id": "a", "label": 1}', {"Content-Type": "text/plain"})[0] == 415
@@ -340,7 +362,7 @@ def test_no_site_can_frame_the_page(open_session):
     """Every answer forbids framing (X-Frame-Options and CSP frame-ancestors): another site cannot show the page under
     its own buttons, which one person alone (no token needed) would otherwise click for it."""
     teacher = open_session
-    teacher.state()
+    page_state(teacher)
     for path, body in (("/", None), ("/api/state", None), ("/api/answer", {"id": "zzz", "label": 1}),
                        ("/clips/a-left.mp4", None), ("/clips/missing.mp4", None), ("/nowhere", None)):  # fmt: skip
         status, headers, _ = request(teacher, path, body)
@@ -851,9 +873,9 @@ def test_ask_from_a_worker_thread_renders_real_clips(tiny_kwargs, tmp_path):
         model.learn(60)
         pairs = sample_segment_pairs(model.real_buffer, 2, 10, 10, np.random.default_rng(0))
         thread, result = ask_in_thread(teacher, pairs, Run(tmp_path / "p.jsonl").context())
-        first = find(teacher, teacher.state()["query"]["id"])
+        first = find(teacher, page_state(teacher)["query"]["id"])
         for label in (0, 1):
-            assert teacher.answer(teacher.state()["query"]["id"], label)[0] == 200
+            assert answer(teacher, page_state(teacher)["query"]["id"], label)[0] == 200
         np.testing.assert_array_equal(finish(thread, result), [0, 1])
     finally:
         teacher.close()

@@ -16,6 +16,7 @@ from test_web import label_or_skip, wait
 from sb3_pride import PEBBLE
 from sb3_pride.common.journal import PreferenceJournal, query_id
 from sb3_pride.human import WebTeacher
+from tests.test_web import page_state
 
 pytest.importorskip("flask")
 CHROMIUM, CHROMEDRIVER = "/usr/bin/chromium", "/usr/bin/chromedriver"
@@ -58,8 +59,8 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
         def press(key: str, answered: int, session: int) -> None:
             shown = wait(lambda: _shown_query(driver, teacher, session))
             body.send_keys(key)
-            wait(lambda: (teacher.state()["answered"] == answered and teacher.state()["session"] == session)
-                  or (answered == 3 and teacher.state()["session"] != session))  # fmt: skip
+            wait(lambda: (page_state(teacher)["answered"] == answered and page_state(teacher)["session"] == session)
+                  or (answered == 3 and page_state(teacher)["session"] != session))  # fmt: skip
             assert shown is not None
 
         # feedback session 1: left, right, undo (takes the "right" back), equal, skip
@@ -83,7 +84,7 @@ def test_a_person_labels_two_sessions_in_headless_chromium(tiny_kwargs, tmp_path
     labels = [entry.label for entry in PreferenceJournal(journal).read()]
     np.testing.assert_array_equal(labels, [0, 0.5, np.nan, 1, 0, 0.5])
     assert model.feedback.journal.included == 6  # every line of the journal is in the model's preferences
-    shown = teacher.state()["reward_history"]
+    shown = page_state(teacher)["reward_history"]
     assert [(entry["session"], entry["labels"]) for entry in shown] == [(1, 2), (2, 5)]
 
 
@@ -252,7 +253,7 @@ def _learn(model: PEBBLE, steps: int, errors: list) -> None:
 
 def _shown_query(driver, teacher: WebTeacher, session: int) -> str | None:
     """The query the page shows, once it is the query handed to the person in ``session`` and its left clip is playing."""
-    state = teacher.state()
+    state = page_state(teacher)
     if state["session"] != session or state["query"] is None:
         return None
     shown = _playing(driver)

@@ -14,6 +14,7 @@ from test_web import FakeBuffer, FakeEnv, black_clip_teachers, request, wait
 from test_web_browser import chromium
 
 from sb3_pride.human import WebTeacher
+from tests.test_web import page_state
 
 pytest.importorskip("flask")
 
@@ -97,7 +98,7 @@ def test_the_state_carries_the_reward_history_nan_as_null(tmp_path):
         np.testing.assert_allclose([entry["correlation"] for entry in shown[:3]], [e["correlation"] for e in history[:3]])
         assert all(entry["correlation"] > 0.9 for entry in shown[:3])
         assert shown[3]["correlation"] is None and shown[3]["accuracy"] is None  # NaN arrives as null
-        assert teacher.state()["reward_history"] == shown
+        assert page_state(teacher)["reward_history"] == shown
 
 
 def test_the_teacher_keeps_a_copy_of_the_history(tmp_path):
@@ -105,10 +106,10 @@ def test_the_teacher_keeps_a_copy_of_the_history(tmp_path):
         teacher = make(annotators=["ana"])
         history = reward_history(wrong)
         teacher.show_reward_history(history)
-        before = teacher.state("ana")["reward_history"]
+        before = page_state(teacher, "ana")["reward_history"]
         history[0]["correlation"] = 0.5  # the caller's list changes afterwards: the page does not
         history.append(dict(session=4, step=300, labels=160, accuracy=1.0, correlation=1.0))
-        teacher.state("ana")["reward_history"][0]["labels"] = -1  # nor does a state that was handed out
+        page_state(teacher, "ana")["reward_history"][0]["labels"] = -1  # nor does a state that was handed out
         headers = {"X-Annotator-Token": teacher.links["ana"].split("token=")[1]}
         status, _, body = request(teacher, "/api/state", headers=headers)
         assert status == 200 and json.loads(body)["reward_history"] == before

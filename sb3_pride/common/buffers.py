@@ -157,7 +157,7 @@ class PreferenceReplayBuffer(ReplayBuffer):
         if any(info.get("render_state") is None for info in infos):
             raise ValueError(
                 "the teacher needs pictures but the env's step info has no 'render_state': record it with "
-                "sb3_pride.common.render_states.RenderStates (every sb3_pride/... env has it)"
+                "sb3_pride.render_states.RenderStates (every sb3_pride/... env has it)"
             )
         states = np.stack([np.asarray(info["render_state"], dtype=np.float64) for info in infos])
         if self.render_states is None:

@@ -8,13 +8,15 @@ the model first, so a run killed while its buffer is written leaves a model with
 name renamed once complete (``atomic_write_path``): the model's rename completes the checkpoint, and a model on disk
 always has its buffer beside it. ``clean_leftovers`` removes what a killed save left (temporary files, a buffer
 whose model was never written), ``latest_checkpoint`` finds the newest complete checkpoint of a folder and
-``resume`` loads it, replay buffer included.
+``resume`` loads it, replay buffer included. ``AtomicSaves`` (mixed into ``PEBBLE``) makes every ``save`` and
+``save_replay_buffer`` such a rename.
 """
 
+import contextlib
 import os
 import re
 import warnings
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, TypeVar
@@ -22,12 +24,53 @@ from typing import Any, TypeVar
 from stable_baselines3.common import callbacks
 from stable_baselines3.common.base_class import BaseAlgorithm
 
-from sb3_pride.common.journal import AtomicSaves, atomic_write_path
 
 SelfAlgorithm = TypeVar("SelfAlgorithm", bound=BaseAlgorithm)
 
 #: ``atomic_write_path``'s temporary files: ``.{name}.{pid}.tmp``
 TEMPORARY_FILE = re.compile(r"\.(?P<name>.+)\.(?P<pid>\d+)\.tmp")
+
+
+@contextlib.contextmanager
+def atomic_write_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
+    """
+    A temporary path beside ``path`` to write to; when the block ends without error it is flushed to disk and
+    renamed onto ``path`` (one atomic step), so a reader, or a run killed mid-write, sees the old file or the new
+    one, never half of one. On error the temporary file is removed and ``path`` is untouched.
+
+    :param suffix: appended to ``path`` when it has none (SB3's rule: ".zip" for models, ".pkl" for buffers)
+    """
+    final = Path(path)
+    if final.suffix == "" and suffix:
+        final = final.with_name(f"{final.name}.{suffix}")
+    final.parent.mkdir(parents=True, exist_ok=True)
+    temporary = final.with_name(f".{final.name}.{os.getpid()}.tmp")
+    try:
+        yield temporary
+        with open(temporary, "rb") as file:
+            os.fsync(file.fileno())
+        os.replace(temporary, final)
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+class AtomicSaves:
+    """
+    SB3's ``save`` and ``save_replay_buffer`` written to a temporary file renamed over ``path`` once complete, so that
+    a run killed mid-save leaves the previous checkpoint readable (mixed in before the algorithm's class).
+    """
+
+    def save(self, path, exclude=None, include=None) -> None:
+        if not isinstance(path, (str, os.PathLike)):
+            return super().save(path, exclude, include)  # type: ignore[misc]
+        with atomic_write_path(path, suffix="zip") as temporary:
+            super().save(temporary, exclude, include)  # type: ignore[misc]
+
+    def save_replay_buffer(self, path) -> None:
+        if not isinstance(path, (str, os.PathLike)):
+            return super().save_replay_buffer(path)  # type: ignore[misc]
+        with atomic_write_path(path, suffix="pkl") as temporary:
+            super().save_replay_buffer(temporary)  # type: ignore[misc]
 
 
 @dataclass(frozen=True)

@@ -1,20 +1,18 @@
 """
-Crash safety: an append-only journal of the teacher's answers, and files written whole or not at all.
+Crash safety for labels: an append-only journal of the teacher's answers.
 
 A preference label costs a person's time; a run may be killed at any moment. ``PreferenceJournal`` appends every
 answer (the pair's reward-model inputs and μ, or a skip) to a JSON-lines file and flushes it to disk before the
 answer is used, so a run resumed from an older checkpoint gets it back instead of asking again.
-``atomic_write_path`` makes a checkpoint replace the previous one only once it is complete. Earlier runs' journals
-are read for a new run to start from by ``sb3_pride.common.priors``.
+Earlier runs' journals are read for a new run to start from by ``sb3_pride.common.priors``.
 """
 
 import base64
 import binascii
-import contextlib
 import hashlib
 import json
 import os
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -183,15 +181,17 @@ class PreferenceJournal:
         records: list[dict] = []
         for entry in entries:
             inputs = np.ascontiguousarray(entry.inputs, dtype=np.float32)
-            records.append({
-                "session": entry.session,
-                "id": query_id(inputs),
-                "label": None if np.isnan(entry.label) else float(entry.label),
-                "shape": list(inputs.shape),
-                "inputs": base64.b64encode(inputs.tobytes()).decode("ascii"),
-                **({} if entry.annotator is None else {"annotator": entry.annotator}),
-                **({} if entry.time is None else {"time": entry.time}),
-            })  # fmt: skip
+            records.append(
+                {
+                    "session": entry.session,
+                    "id": query_id(inputs),
+                    "label": None if np.isnan(entry.label) else float(entry.label),
+                    "shape": list(inputs.shape),
+                    "inputs": base64.b64encode(inputs.tobytes()).decode("ascii"),
+                    **({} if entry.annotator is None else {"annotator": entry.annotator}),
+                    **({} if entry.time is None else {"time": entry.time}),
+                }
+            )
         self._write(records, header)
 
     def append_undo(self, session: int, entry_id: str | None = None, annotator: str | None = None) -> None:
@@ -232,48 +232,6 @@ def find_journal(journal: str, model_path: str | os.PathLike) -> str:
         if candidate.is_file():
             return str(candidate)
     return journal
-
-
-@contextlib.contextmanager
-def atomic_write_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
-    """
-    A temporary path beside ``path`` to write to; when the block ends without error it is flushed to disk and
-    renamed onto ``path`` (one atomic step), so a reader, or a run killed mid-write, sees the old file or the new
-    one, never half of one. On error the temporary file is removed and ``path`` is untouched.
-
-    :param suffix: appended to ``path`` when it has none (SB3's rule: ".zip" for models, ".pkl" for buffers)
-    """
-    final = Path(path)
-    if final.suffix == "" and suffix:
-        final = final.with_name(f"{final.name}.{suffix}")
-    final.parent.mkdir(parents=True, exist_ok=True)
-    temporary = final.with_name(f".{final.name}.{os.getpid()}.tmp")
-    try:
-        yield temporary
-        with open(temporary, "rb") as file:
-            os.fsync(file.fileno())
-        os.replace(temporary, final)
-    finally:
-        temporary.unlink(missing_ok=True)
-
-
-class AtomicSaves:
-    """
-    SB3's ``save`` and ``save_replay_buffer`` written to a temporary file renamed over ``path`` once complete, so that
-    a run killed mid-save leaves the previous checkpoint readable (mixed in before the algorithm's class).
-    """
-
-    def save(self, path, exclude=None, include=None) -> None:
-        if not isinstance(path, (str, os.PathLike)):
-            return super().save(path, exclude, include)  # type: ignore[misc]
-        with atomic_write_path(path, suffix="zip") as temporary:
-            super().save(temporary, exclude, include)  # type: ignore[misc]
-
-    def save_replay_buffer(self, path) -> None:
-        if not isinstance(path, (str, os.PathLike)):
-            return super().save_replay_buffer(path)  # type: ignore[misc]
-        with atomic_write_path(path, suffix="pkl") as temporary:
-            super().save_replay_buffer(temporary)  # type: ignore[misc]
 
 
 class JournalBook:

@@ -10,7 +10,7 @@ Its parts: ``AnswerStore`` (the open feedback session, who is handed what, answe
 ``FrameRecording`` (the frames of envs that cannot be re-rendered, recorded while the agent collects).
 """
 
-from sb3_pride.common.render_states import RenderStateEnv, RenderStates
+from sb3_pride.render_states import RenderStateEnv, RenderStates
 from sb3_pride.human.app import create_app
 from sb3_pride.human.clips import Clips, RenderThread
 from sb3_pride.human.quality import Quality

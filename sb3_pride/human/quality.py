@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from sb3_pride.common.journal import atomic_write_path
+from sb3_pride.common.checkpoints import atomic_write_path
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.human.questions import Answer, KnownPair, Question, Session
 from sb3_pride.human.settings import ANONYMOUS

@@ -4,7 +4,7 @@ re-rendered from a stored state (classic control, Box2D, a user's own simulator 
 
 - ``RecordRenders`` wraps each env of the model's ``DummyVecEnv`` (put there by the teacher when it is attached, never
   before: a scripted run records nothing). After every step it puts into ``info["render_state"]`` either the env's own
-  render state (``get_render_state()``, the render-state protocol of ``sb3_pride.common.render_states``) or the key of
+  render state (``get_render_state()``, the render-state protocol of ``sb3_pride.render_states``) or the key of
   the frame it rendered, which ``FrameRecording`` stores; ``PreferenceReplayBuffer`` keeps it beside the transition.
 - ``FrameRecording`` keeps each rendered frame losslessly compressed (zlib) in files of ``CHUNK_FRAMES`` frames, in a
   folder of its own, for a rolling window of each env's most recent episodes (the running one included, as the query

@@ -2,7 +2,7 @@
 Segments a person can watch: the simulator states recorded beside the transitions, re-rendered later in an env of
 the renderer's own, and encoded as clips any browser plays.
 
-- ``RenderStates`` (``sb3_pride.common.render_states``, on every ``sb3_pride/...`` env, off until a teacher needs
+- ``RenderStates`` (``sb3_pride.render_states``, on every ``sb3_pride/...`` env, off until a teacher needs
   pictures) records the MuJoCo state after each step beside the transition.
 - ``SegmentRenderer`` restores those states one by one in its own env and renders them headless (``MUJOCO_GL=egl``),
   pixel-identical to frames rendered from the live env.
@@ -20,7 +20,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_pride.common.render_states import (
+from sb3_pride.render_states import (
     capture_state,
     mujoco_handles,
     randomized_model_fields,
@@ -83,7 +83,7 @@ def frame_rate(env: gym.Env) -> float:
 class StateRenderer:
     """
     Renders states recorded through the render-state protocol (``get_render_state``/``render_from_state`` of
-    ``sb3_pride.common.render_states.RenderStateEnv``) in a copy of the env of its own: made again from its spec
+    ``sb3_pride.render_states.RenderStateEnv``) in a copy of the env of its own: made again from its spec
     (``gymnasium.make``) when it has one, else a deep copy of the unwrapped env.
 
     :param env: the model's env (one of its ``DummyVecEnv``)

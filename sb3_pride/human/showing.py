@@ -14,7 +14,7 @@ An env with none of these is refused, naming the ``render_mode`` it needs.
 
 from typing import TYPE_CHECKING, Any
 
-from sb3_pride.common.render_states import RenderStates, enable_render_states, has_render_state_protocol
+from sb3_pride.render_states import RenderStates, enable_render_states, has_render_state_protocol
 from sb3_pride.human import render
 from sb3_pride.human.clips import Clips
 from sb3_pride.human.recording import FrameRecording, record_renders

@@ -27,7 +27,6 @@ import numpy as np
 from sb3_pride.common.queries import SegmentPairs
 from sb3_pride.common.teachers import FeedbackContext, InteractiveTeacher, register_teacher
 from sb3_pride.human import showing
-from sb3_pride.human.app import REFUSAL_STATUS
 from sb3_pride.human.clips import Clips
 from sb3_pride.human.quality import (
     FLAG_BELOW,
@@ -37,7 +36,7 @@ from sb3_pride.human.quality import (
     MIN_RETURN_SCALE,
     Quality,
 )
-from sb3_pride.human.questions import Question, Refused, Session
+from sb3_pride.human.questions import Question, Session
 from sb3_pride.human.render import use_headless_gl
 from sb3_pride.human.recording import check_recording_settings
 from sb3_pride.human.server import WebServer
@@ -62,10 +61,24 @@ if TYPE_CHECKING:
 
 # the constants and helpers of the parts, where they have always been imported from
 __all__ = [
-    "ALLOWED_LABELS", "ANNOTATOR_NAME", "ANONYMOUS", "FLAG_BELOW", "FLAG_MIN_KNOWN", "GENERIC_INSTRUCTIONS",
-    "HIDDEN_DURING_SESSION", "KNOWN_POOL_SIZE", "LOCAL_HOSTS", "MIN_RETURN_SCALE", "QUEUE_LENGTH", "RELEASE_AFTER",
-    "TASK_INSTRUCTIONS", "WebTeacher", "default_instructions", "is_local", "shared_web_teacher",
-]  # fmt: skip
+    "ALLOWED_LABELS",
+    "ANNOTATOR_NAME",
+    "ANONYMOUS",
+    "FLAG_BELOW",
+    "FLAG_MIN_KNOWN",
+    "GENERIC_INSTRUCTIONS",
+    "HIDDEN_DURING_SESSION",
+    "KNOWN_POOL_SIZE",
+    "LOCAL_HOSTS",
+    "MIN_RETURN_SCALE",
+    "QUEUE_LENGTH",
+    "RELEASE_AFTER",
+    "TASK_INSTRUCTIONS",
+    "WebTeacher",
+    "default_instructions",
+    "is_local",
+    "shared_web_teacher",
+]
 
 
 class WebTeacher(InteractiveTeacher):
@@ -196,15 +209,41 @@ class WebTeacher(InteractiveTeacher):
 
     # a saved model keeps the settings, not the server, the tokens or the answers
     _SETTINGS = (
-        "port", "host", "timeout", "width", "height", "clip_dir", "reminder_interval", "camera", "annotators",
-        "instructions", "answers_per_query", "known_answer_rate", "known_answer_margin", "report_path", "seed",
-        "read_timeout", "hand_over_after", "recorded_episodes", "recording_bytes", "recording_dir",
-    )  # fmt: skip
+        "port",
+        "host",
+        "timeout",
+        "width",
+        "height",
+        "clip_dir",
+        "reminder_interval",
+        "camera",
+        "annotators",
+        "instructions",
+        "answers_per_query",
+        "known_answer_rate",
+        "known_answer_margin",
+        "report_path",
+        "seed",
+        "read_timeout",
+        "hand_over_after",
+        "recorded_episodes",
+        "recording_bytes",
+        "recording_dir",
+    )
     _DEFAULTS: ClassVar[dict[str, Any]] = dict(
-        annotators=None, instructions=None, answers_per_query=1, known_answer_rate=0.0, known_answer_margin=0.5,
-        report_path=None, seed=None, read_timeout=READ_TIMEOUT, hand_over_after=HAND_OVER_AFTER, recorded_episodes=100,
-        recording_bytes=1 << 30, recording_dir=None,
-    )  # fmt: skip
+        annotators=None,
+        instructions=None,
+        answers_per_query=1,
+        known_answer_rate=0.0,
+        known_answer_margin=0.5,
+        report_path=None,
+        seed=None,
+        read_timeout=READ_TIMEOUT,
+        hand_over_after=HAND_OVER_AFTER,
+        recorded_episodes=100,
+        recording_bytes=1 << 30,
+        recording_dir=None,
+    )
 
     def __getstate__(self) -> dict:
         return {name: self.__dict__[name] for name in self._SETTINGS}
@@ -283,8 +322,12 @@ class WebTeacher(InteractiveTeacher):
             raise RuntimeError("WebTeacher was not attached to an env (PEBBLE/PRIDE attach their teacher themselves)")
         if pairs.render_states is None:
             raise ValueError("WebTeacher needs pairs with render_states (recorded once it is attached to the model)")
-        session = Session(context.session, [Question(uuid.uuid4().hex[:12], inputs) for inputs in pairs.inputs],
-                          context.asked_before, context)  # fmt: skip
+        session = Session(
+            context.session,
+            [Question(uuid.uuid4().hex[:12], inputs) for inputs in pairs.inputs],
+            context.asked_before,
+            context,
+        )
         known = self.quality.known_from_reward(pairs)
         self.store.begin(session)
         where = f"{self.url} (each annotator through their own link)" if self.links else self.url
@@ -314,56 +357,6 @@ class WebTeacher(InteractiveTeacher):
     def agreement(self) -> dict[str, dict[str, Any]]:
         """Per annotator, over every answer given to this teacher: ``Quality.agreement()``."""
         return self.quality.agreement()
-
-    def state(self, annotator: str | None = None) -> dict[str, Any]:
-        """
-        What ``annotator``'s page shows (handing them questions): the question shown and the next, the session's and
-        the budget's progress, their answers and the team's, the instructions, and the reward model's history
-        (``reward_history``: ``show_reward_history``'s, a NaN as None).
-
-        Nothing in it moves differently on a known-answer question: ``answered`` counts the session's answers (known
-        ones and skips included) out of ``total`` (with ``known_answer_rate > 0`` an estimate, ``estimate`` true, never
-        below ``answered``), the budget counts the session's queries as asked from its start, and the team's
-        agreement (``known_answer*``, ``compared_answers``, ``pairwise_agreement``, ``flagged``) is only shown between
-        feedback sessions (None during one; ``agreement()`` always has it).
-
-        :param annotator: whose page (None without ``annotators``: the one person; with them, None is an overview
-            that hands nothing out)
-        """
-        return self.store.page_state(annotator, self.page_instructions)
-
-    def answer(self, question_id: Any, label: Any, annotator: str | None = None) -> tuple[int, str]:
-        """
-        Record ``annotator``'s answer to question ``question_id`` (the one shown to them); a refusal records nothing.
-        A known-answer question is scored by the first answer the annotator gives it: after an undo, their new
-        answer is shown as theirs but changes no count of ``agreement()``.
-
-        :param question_id: the id of the question shown (``state()["query"]["id"]``)
-        :param label: μ: 0 (left preferred), 1 (right), 0.5 (equally good) or None (skip); -0.0 is taken as 0
-        :param annotator: who answers (None without ``annotators``: the one person)
-        :return: (HTTP status as an int, message as a str): 200 when recorded; 400 for a malformed label or id; 404
-            for a question that is not in the open session; 409 for no open session, a question the annotator already
-            answered or a query that has all its answers; 403 for a question not shown to the annotator
-        """
-        try:
-            self.store.answer(question_id, label, annotator)
-        except Refused as refusal:
-            return REFUSAL_STATUS[refusal.reason], str(refusal)
-        return 200, "recorded"
-
-    def undo(self, annotator: str | None = None) -> tuple[int, str]:
-        """
-        Take back ``annotator``'s last answer of this session (and say so in the journal); the question is shown to
-        them again. An undone known-answer question keeps its score: the first answer given to it counts.
-
-        :param annotator: whose answer (None without ``annotators``: the one person)
-        :return: (HTTP status as an int, the question's id or why not as a str): 200 when taken back, 409 when there
-            is none to take back
-        """
-        try:
-            return 200, self.store.undo(annotator)
-        except Refused as refusal:
-            return REFUSAL_STATUS[refusal.reason], str(refusal)
 
 
 _shared: WebTeacher | None = None

@@ -17,7 +17,8 @@ from stable_baselines3.sac.policies import SACPolicy
 from sb3_pride.common.buffers import PreferenceReplayBuffer
 from sb3_pride.common.entropy import StateEntropyReward
 from sb3_pride.common.env_checks import check_env, env_id
-from sb3_pride.common.journal import AtomicSaves, JournalBook, journal_header
+from sb3_pride.common.checkpoints import AtomicSaves
+from sb3_pride.common.journal import JournalBook, journal_header
 from sb3_pride.reward.learned_reward import LearnedReward
 from sb3_pride.common.queries import QuerySampler
 from sb3_pride.pebble.replay_rewards import ReplayRewards
@@ -28,7 +29,7 @@ from sb3_pride.pebble.callbacks import FeedbackCallback
 from sb3_pride.pebble.feedback import FeedbackLoop, FeedbackSchedule
 from sb3_pride.pebble.phase import PreferencePhase
 from sb3_pride.pebble.earlier_versions import renamed_settings_error
-from sb3_pride.pebble.settings import (
+from sb3_pride.pebble.checks import (
     STRUCTURED_SETTINGS,
     check_feedback_settings,
     check_sac_arguments,

@@ -11,7 +11,7 @@ import torch as th
 from gymnasium import spaces
 
 from sb3_pride.common.env_checks import env_id
-from sb3_pride.common.journal import atomic_write_path
+from sb3_pride.common.checkpoints import atomic_write_path
 from sb3_pride.reward.learner import RewardLearner
 from sb3_pride.common.utils import plain
 

@@ -46,9 +46,22 @@ def has_render_state_protocol(env: gym.Env) -> bool:
 
 #: model fields a reset may re-draw, recorded with the state when they do (small per-element arrays)
 MODEL_FIELDS = (
-    "body_pos", "body_quat", "geom_pos", "geom_quat", "geom_size", "geom_rgba", "site_pos", "site_quat",
-    "site_size", "site_rgba", "cam_pos", "cam_quat", "light_pos", "light_dir", "mat_rgba",
-)  # fmt: skip
+    "body_pos",
+    "body_quat",
+    "geom_pos",
+    "geom_quat",
+    "geom_size",
+    "geom_rgba",
+    "site_pos",
+    "site_quat",
+    "site_size",
+    "site_rgba",
+    "cam_pos",
+    "cam_quat",
+    "light_pos",
+    "light_dir",
+    "mat_rgba",
+)
 #: model fields too large to record per transition: a task that re-draws them is refused
 UNRECORDABLE_FIELDS = ("hfield_data", "tex_data", "mesh_vert")
 #: resets of the renderer's own env (distinct seeds) that find which model fields a reset re-draws
@@ -183,6 +196,6 @@ def enable_render_states(vec_env: Any, layout: Layout) -> int:
     except AttributeError:
         raise ValueError(
             "the env does not record render states: make it with gymnasium.make('sb3_pride/...') (RenderStates is "
-            "on every sb3_pride env) or wrap it with sb3_pride.common.render_states.RenderStates"
+            "on every sb3_pride env) or wrap it with sb3_pride.render_states.RenderStates"
         ) from None
     return int(sizes[0])
