@@ -6,6 +6,8 @@ minibatches SAC draws (``CriticDiagnostics``: ``train/critic_loss_real``, ``trai
 generators, so a run with them trains exactly as one without.
 """
 
+from typing import Any
+
 import numpy as np
 import torch as th
 from stable_baselines3.common.callbacks import BaseCallback
@@ -22,6 +24,8 @@ class CriticDiagnostics(BaseCallback):
     :param interval: env steps between two diagnostics
     :param seed: the seed of its own generators
     """
+
+    model: Any  # a PEBBLE or a PRIDE
 
     def __init__(self, interval: int = 100, seed: int | None = None):
         super().__init__()
@@ -63,6 +67,8 @@ class CriticDiagnostics(BaseCallback):
 
 class AwaitingFeedback(BaseCallback):
     """The env steps made while a published feedback session was open (its answers awaited), over the run."""
+
+    model: Any  # a PEBBLE or a PRIDE
 
     def __init__(self):
         super().__init__()

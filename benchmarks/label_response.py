@@ -54,7 +54,7 @@ def is_dm_control(task: str) -> bool:
 def read_screen(grid_file: Path = SCREEN, runs_folder: Path | None = None) -> dict[str, Any]:
     """Each task of the screen with its seeds' curves read by the rule, and the selection the rule makes."""
     rows, _, _ = page.collect([grid_file], runs_folder)
-    tasks = {}
+    tasks: dict[str, dict[str, Any]] = {}
     for row in rows.values():
         runs = page.runs_of(row)
         if not runs:

@@ -20,10 +20,13 @@ class RewardSource(Protocol):
     transition, the rewards of a sampled minibatch, and the rows a share of each minibatch is drawn from.
     """
 
-    #: the share of each minibatch drawn from ``recent_rows`` (QPA's hybrid replay; 0: uniform, as SB3 samples)
-    recent_share: float
-    #: buffer rows of the most recent episodes, or None
-    recent_rows: np.ndarray | None
+    @property
+    def recent_share(self) -> float:
+        """The share of each minibatch drawn from ``recent_rows`` (QPA's hybrid replay; 0: uniform, as SB3 samples)."""
+
+    @property
+    def recent_rows(self) -> np.ndarray | None:
+        """Buffer rows of the most recent episodes, or None."""
 
     def new_rewards(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """The rewards stored with transitions being added, (n_envs,): r̂, or 0 before the first reward model."""

@@ -84,8 +84,8 @@ class Checkpoint:
 
 
 def checkpoint_path(folder: str | os.PathLike, name_prefix: str, step: int, kind: str = "") -> Path:
-    """The path of a checkpoint's file, as SB3's ``CheckpointCallback`` names it (``kind``: "", "replay_buffer_" or
-    "vecnormalize_")."""
+    """The path of a checkpoint's file, as SB3's ``CheckpointCallback`` names it (``kind``: "", ``"replay_buffer_"``
+    or ``"vecnormalize_"``)."""
     return Path(folder) / f"{name_prefix}_{kind}{step}_steps.{'pkl' if kind else 'zip'}"
 
 

@@ -24,8 +24,9 @@ class FeedbackCallback(BaseCallback):
 
     def _on_step(self) -> bool:
         model = self.model
-        if model.replay_rewards.bonus_active:  # RUNE's β_t counts num_timesteps: learn(reset_num_timesteps=True) resets it
-            model.logger.record("train/exploration_beta", model.reward_learner.exploration_bonus.beta(model.num_timesteps))
+        bonus = model.reward_learner.exploration_bonus
+        if bonus is not None and model.replay_rewards.bonus_active:  # RUNE's β_t counts num_timesteps (learn() resets it)
+            model.logger.record("train/exploration_beta", bonus.beta(model.num_timesteps))
         if model.feedback.pending is not None:
             if model.feedback.ready:
                 self._take_answers()

@@ -1,5 +1,7 @@
 import inspect
+import io
 import os
+import pathlib
 import time
 from collections.abc import Sequence
 from typing import Any, ClassVar, TypeVar
@@ -228,7 +230,7 @@ class PEBBLE(AtomicSaves, SAC):
     @classmethod
     def load(
         cls,
-        path: str | os.PathLike,
+        path: str | pathlib.Path | io.BufferedIOBase,
         env: GymEnv | None = None,
         device: th.device | str = "auto",
         custom_objects: dict[str, Any] | None = None,

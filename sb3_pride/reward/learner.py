@@ -59,6 +59,9 @@ class RewardLearner:
     :param temporal_crop: SURF's temporal cropping (Park et al., ICLR 2022): each pair cropped to one random length in
         ``(min_length, max_length)`` at every minibatch, with its own start in each segment; ``max_length <=
         segment_length``: (35, 45) at segment 50 is QPA's S−15..S−5. None: whole segments
+    :param device: where the networks live
+    :param options: the reward-learning options, by name (below)
+
     Options (``reward_kwargs[name]``: ``False``, the default, off; ``True``, the published settings; a dict of the
     option's settings), each a ``RewardOption`` registered by name (``register_reward_option``: a user's own plugs in
     the same way), called in the order they were registered:
@@ -71,8 +74,6 @@ class RewardLearner:
       on the labels the ensemble finds plausible and flips those it is confident are wrong (``RobustLabels``);
     - ``exploration_bonus``: RUNE's exploration bonus (Liang et al., ICLR 2022): SAC learns from r̂ + β_t · σ, σ the
       members' disagreement (``ExplorationBonus``); needs ``ensemble_size >= 2``.
-
-    :param device: where the networks live
     """
 
     def __init__(

@@ -41,6 +41,8 @@ class RewardOption:
 
     #: True: it learns from the agent's stored transitions, which r̂ fitted from preferences alone does not have
     needs_transitions: ClassVar[bool] = False
+    #: a dataclass's fields (an option is a dataclass of its settings)
+    __dataclass_fields__: ClassVar[dict[str, Any]]
 
     def setup(self, learner: "RewardLearner") -> None:
         pass
@@ -209,7 +211,7 @@ class PseudoLabels(RewardOption):
         assert buffer is not None and queries is not None  # needs_transitions
         n = min(self.unlabeled_per_label * len(preferences), self.max_unlabeled)
         pairs = queries.unlabeled_pairs(buffer, n, rng)
-        self.unlabeled = th.as_tensor(pairs, device=learner.ensemble.device) if len(pairs) > 0 else None
+        self.unlabeled = th.as_tensor(pairs, device=learner.ensemble.device) if pairs is not None and len(pairs) else None
 
     def extra_loss(
         self, ensemble: "RewardEnsemble", n_pairs: int, rng: np.random.Generator, temporal_crop: tuple[int, int] | None
