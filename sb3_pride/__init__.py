@@ -1,6 +1,7 @@
 """sb3_pride: preference-based RL for Stable-Baselines3 — PEBBLE and PRIDE (PEBBLE + a diffusion model)."""
 
-from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer, SyntheticReplayBuffer
+from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.pride.buffers import DualReplayBuffer, SyntheticReplayBuffer
 from sb3_pride.pride.diffusion import ElucidatedDiffusion
 from sb3_pride.common.teachers import TEACHER_PRESETS, ScriptedTeacher, Teacher
 from sb3_pride.envs import register_envs

@@ -15,23 +15,13 @@ from gymnasium import spaces
 from stable_baselines3.common import callbacks
 
 from sb3_pride import PEBBLE
-from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer, full_size_state
+from sb3_pride.common.buffers import PreferenceReplayBuffer, full_size_state
+from sb3_pride.pride.buffers import DualReplayBuffer
 from sb3_pride.common.checkpoints import CheckpointCallback, clean_leftovers, latest_checkpoint, resume
 from sb3_pride.common.journal import PreferenceJournal
-from sb3_pride.common.teachers import make_teacher
+from tests.test_journal import CountingTeacher
 
 OBSERVATIONS, ACTIONS = spaces.Box(-1, 1, (3,), np.float32), spaces.Box(-1, 1, (2,), np.float32)
-
-
-class CountingTeacher:
-    """The oracle, counting the queries it is asked."""
-
-    def __init__(self):
-        self.oracle, self.asked = make_teacher("oracle"), 0
-
-    def __call__(self, pairs):
-        self.asked += len(pairs)
-        return self.oracle(pairs)
 
 
 def add_transitions(buffer, n: int, seed: int) -> None:

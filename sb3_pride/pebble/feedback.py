@@ -200,8 +200,6 @@ class FeedbackLoop:
         #: the published session whose answers are awaited (None: no session is open); never saved
         self.pending: PendingFeedback | None = None
         self._records: deque[tuple[str, float]] = deque()  # what the teacher asked to log (thread-safe appends)
-        #: the reward learner's history (the same list), shown to an interactive teacher when it is attached
-        self.reward_history: list[dict] = []
 
     def __getstate__(self) -> dict:
         # a session in progress is not saved (the journal keeps its answers); of the teachers given by name, only
@@ -226,26 +224,27 @@ class FeedbackLoop:
         env: "VecEnv | None",
         buffer: "PreferenceReplayBuffer | None",
         progress: tuple[int, int],
+        history: list[dict],
     ) -> None:
         """
         Resolve the teacher; an ``InteractiveTeacher`` is attached to the env and the replay buffer (so that an env it
         cannot show fails now, not at the first feedback session) and shown ``progress`` (asked, budget) and the
-        ``reward_history`` so far; any other teacher records nothing beside the transitions.
+        reward learner's ``history`` so far; any other teacher records nothing beside the transitions.
         """
         resolved = self.resolve(teacher, seed)
         if isinstance(resolved, InteractiveTeacher):
             if env is not None and buffer is not None:
                 resolved.attach(env, buffer)
                 resolved.show_progress(*progress)
-                if self.reward_history:  # a loaded model's page shows what r̂ learned so far
-                    self.show_reward_history()
+                if history:  # a loaded model's page shows what r̂ learned so far
+                    self.show_reward_history(history)
         elif buffer is not None:  # a resumed buffer may say otherwise
             buffer.record_render_states = False
 
-    def show_reward_history(self) -> None:
-        """Show an ``InteractiveTeacher`` the reward learner's history (``reward_history``); any other teacher: nothing."""
+    def show_reward_history(self, history: list[dict]) -> None:
+        """Show an ``InteractiveTeacher`` the reward learner's ``history``; any other teacher: nothing."""
         if isinstance(self.teacher, InteractiveTeacher):
-            self.teacher.show_reward_history(self.reward_history)
+            self.teacher.show_reward_history(history)
 
     def open_journal(
         self,

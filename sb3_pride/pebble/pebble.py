@@ -198,7 +198,7 @@ class PEBBLE(AtomicSaves, SAC):
         previous = self.__dict__.get("reward_learner")  # a loaded model's: RIME's selection and the history go on
         carried = getattr(previous, "label_selection", None)
         self.reward_learner = RewardLearner(obs_dim, action_dim, self.segment_length, device=self.device, **self.reward_kwargs)
-        self.reward_learner.history = self.feedback.reward_history = list(getattr(previous, "history", []))
+        self.reward_learner.history = list(getattr(previous, "history", []))
         if carried is not None and self.reward_learner.label_selection is not None:
             self.reward_learner.label_selection = carried
         # r̂ and REED's heads: state dicts under names of their own (the learner's data is saved apart)
@@ -225,7 +225,8 @@ class PEBBLE(AtomicSaves, SAC):
         teacher records or re-renders what the env shows.
         """
         self.real_buffer.reward_source = self.replay_rewards
-        self.feedback.attach(self.teacher, self.seed, self.env, self.real_buffer, (self.phase.asked, self.max_feedback))
+        progress, history = (self.phase.asked, self.max_feedback), self.reward_learner.history
+        self.feedback.attach(self.teacher, self.seed, self.env, self.real_buffer, progress, history)
 
     @classmethod
     def load(
@@ -334,7 +335,7 @@ class PEBBLE(AtomicSaves, SAC):
             self.logger.record("feedback/seconds_awaiting", time.monotonic() - answers.published_time)
         if isinstance(self.feedback.teacher, InteractiveTeacher):
             self.feedback.teacher.show_progress(self.phase.asked, self.max_feedback)
-        if len(self.preferences) > 0:
+        if self.phase.learned:  # r̂ has labels to learn from (this session's, or earlier runs')
             self.learn_reward()
 
     def learn_reward(self) -> None:
@@ -347,7 +348,7 @@ class PEBBLE(AtomicSaves, SAC):
                 self.logger.record(f"reward_model/{key}", value)
         self.logger.record("reward_model/true_reward_corr", correlation)
         self.reward_learner.record(self.phase.sessions, self.num_timesteps, len(self.preferences), report, correlation)
-        self.feedback.show_reward_history()  # the learner's history is the feedback loop's reward_history
+        self.feedback.show_reward_history(self.reward_learner.history)
         if self.verbose > 0:
             print(
                 f"feedback session {self.phase.sessions} at step {self.num_timesteps}: "

@@ -7,7 +7,8 @@ from stable_baselines3.common.preprocessing import get_action_dim, get_flattened
 from stable_baselines3.common.type_aliases import GymEnv
 from stable_baselines3.sac.policies import SACPolicy
 
-from sb3_pride.common.buffers import DualReplayBuffer, PreferenceReplayBuffer
+from sb3_pride.common.buffers import PreferenceReplayBuffer
+from sb3_pride.pride.buffers import DualReplayBuffer
 from sb3_pride.common.env_checks import check_episode_length
 from sb3_pride.pride.generator import GenerationReport, TransitionGenerator
 from sb3_pride.common.queries import chronological_rows
