@@ -177,6 +177,15 @@ def code_differs(*arms: list[str | None]) -> bool:
     return len(codes) != 1 or not known
 
 
+def cpu_differs(*arms: list[str | None]) -> bool:
+    """
+    Whether the runs of the arms ran on more than one CPU kind (settings.json's ``system["CPU"]``): seeds repeat a
+    run only on one kind, so such a comparison mixes kinds as one across code versions mixes code. Runs that recorded
+    no CPU are not counted (their code is unrecorded too, and marked for that).
+    """
+    return len({cpu for arm in arms for cpu in arm if cpu is not None}) > 1
+
+
 def run_folders(grid_files: list[Path], runs_folder: Path | None = None) -> set[Path]:
     """The folders the grid files' runs go to (``benchmarks/results/runs`` for every committed grid file)."""
     return {grid.out_folder(grid.load_grid(path), runs_folder) for path in grid_files}
@@ -289,6 +298,7 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
         has_success = found and not all(value != value for value in successes)  # NaN: no success column
         row["seeds"] = [r["settings"]["seed"] for r in found]
         row["code"] = [code_of(r["settings"]) for r in found]  # seed by seed, as "seeds"
+        row["cpu"] = [(r["settings"].get("system") or {}).get("CPU") for r in found]
         row["feedback_asked"] = [r["result"].get("feedback_asked") for r in found]  # seed by seed, as "seeds"
         row["runs"] = [run.run_name(spec) for spec in sorted(row["specs"], key=lambda spec: spec["seed"])]
         row["primary_return"] = spread(finals[key])
@@ -350,6 +360,7 @@ def recount(grid_files: list[Path], runs_folder: Path | None = None) -> dict[str
             "y": label_of(rows[key_y]),
             **value,
             "code_differs": code_differs(rows[key_x]["code"], rows[key_y]["code"]),
+            "cpu_differs": cpu_differs(rows[key_x]["cpu"], rows[key_y]["cpu"]),
         }
         if from_grid is None:
             rows[key_x]["against_pebble"] = entry
@@ -443,6 +454,7 @@ def verdict(claim: dict, task: str, rows: dict[tuple, dict], finals: dict[tuple,
         "needs_seeds": claim["seeds"],
         "seeds": [len(x["seeds"]), len(y["seeds"])],
         "code_differs": code_differs(x["code"], y["code"]),
+        "cpu_differs": cpu_differs(x["cpu"], y["cpu"]),
         "grid": claim["grid"],
         "reading": metric == "return" and claim["p"] is None,  # no threshold: reported whatever it reads
     }

@@ -1326,3 +1326,14 @@ def test_critic_diagnostics_are_logged_after_pretraining_and_change_no_training_
         assert len(values) >= 1 and np.all(np.isfinite(values[key]))
         assert values["time/total_timesteps"].min() > 300  # never during pre-training, where r_int is the reward
     assert (progress["train/critic_loss_real"].dropna() >= 0).all()
+
+
+def test_a_comparison_across_cpu_kinds_is_marked_as_one_across_code_versions(page):
+    """Seeds repeat a run only on one CPU kind: a P whose arms ran on two kinds carries the mark of mixed code."""
+    from results_recount import cpu_differs
+
+    assert not cpu_differs(["AMD EPYC", "AMD EPYC"], ["AMD EPYC"]) and not cpu_differs(["AMD EPYC"], [None])
+    assert cpu_differs(["AMD EPYC"], ["Intel(R) Xeon(R) Processor"]) and cpu_differs(["AMD EPYC", "Intel"], [])
+    entry = {"p": 0.6, "ci95": [0.4, 0.8], "mann_whitney_p": 0.2, "code_differs": False, "cpu_differs": True}
+    assert page.p_text(entry).endswith(page.CODE_MARK) and "more than one CPU kind" in page.CODE_NOTE
+    assert not page.p_text({**entry, "cpu_differs": False}).endswith(page.CODE_MARK)
