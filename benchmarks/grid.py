@@ -16,6 +16,9 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
     comparisons: [[rows_on_top, rows_in_place]]   # optional: P(X > Y) of two configurations of a block's task
     pride_settings: {feedback_schedule: constant}  # optional: every PRIDE run's arguments on top of the tier's YAML,
                                                    # beneath its variant's (a grid made before a default changed)
+    sessions: 5                        # optional: the budget asked in this many feedback sessions at every budget of a
+                                       # ladder (queries_per_session = ceil(budget / sessions): PEBBLE's constant
+                                       # schedule; PRIDE's front-loaded one asks it in five sessions at any budget)
     repeats: benchmarks/results/runs  # optional: runs of the same names it re-runs (benchmarks/grids/repeats/), to
                                        # check with benchmarks/same_seed.py that they repeat evaluation by evaluation
     claims:                            # optional: rules written before the runs, read by benchmarks/results_page.py
@@ -68,6 +71,7 @@ GRID_KEYS = {
     "summary",
     "comparisons",
     "pride_settings",
+    "sessions",
     "claims",
     "check",
     "repeats",
@@ -135,6 +139,9 @@ def load_grid(path: Path) -> dict[str, Any]:
             f"{path}: pride_settings is a mapping of PRIDE's arguments other than those its blocks set "
             "(max_feedback, synthetic_ratio: feedback, ratios)"
         )
+    sessions = grid.get("sessions")
+    if sessions is not None and not (type(sessions) is int and sessions >= 1):
+        raise GridError(f"{path}: sessions is a positive integer (the feedback sessions that ask a budget), got {sessions!r}")
     if not isinstance(grid.get("claims", []), list):
         raise GridError(f"{path}: claims is a list of claims, each a mapping of {', '.join(sorted(CLAIM_KEYS))}")
     for i, claim in enumerate(grid.get("claims") or []):
@@ -259,6 +266,7 @@ def expand(grid: dict[str, Any], variants: dict[str, dict[str, Any]] | None = No
                     eval_freq=grid.get("eval_freq", 5000),
                     eval_episodes=grid.get("eval_episodes", 5),
                     timesteps=grid.get("timesteps", 0),
+                    sessions=grid.get("sessions"),
                     tag=config["tag"],
                     overrides=config["overrides"],
                     configuration=label,

@@ -2,6 +2,7 @@
 How many labels does a policy need? The label-response study's reading of its runs.
 
     python benchmarks/label_response.py screen    # which candidate tasks qualify, by the rule of the screen's grid file
+    python benchmarks/label_response.py ladders GRID...   # label-response curves, labels to the target, the figure
 
 ``screen`` reads the SAC runs of ``benchmarks/grids/pending/label-response-screen.yml`` (pending until its runs are in) and applies the rule its description
 states (written before its runs): per task, the mean curve over seeds; its plateau gap, (best - mean of the last third
@@ -12,7 +13,12 @@ and the next is held out. It writes ``benchmarks/results/label_response_screen.m
 The ladders' reading (labels to the target, with a bootstrap interval over seeds) is :func:`labels_to_target` and
 :func:`bootstrap_labels`: the target is ``TARGET_SHARE`` of what PEBBLE reaches at the ladder's top budget, the labels
 an arm needs are interpolated on the log-budget axis where its mean return first reaches the target, and an arm that
-never reaches it within the ladder needs more than the ladder holds (``inf``).
+never reaches it within the ladder needs more than the ladder holds (``inf``). ``ladders`` reads ladder grids (one
+configuration at several budgets, SAC on the true reward beside it) into ``benchmarks/results/label_response.md``
+and ``figures/label_response.png``: per task and arm, the share of SAC's return at each budget, (R - R_random) /
+(R_SAC - R_random) with ``R_random`` a uniformly random policy's return, with a 95% bootstrap interval over seeds and
+the mean last corr(r̂, r); the labels each arm needs to reach the target; and the ratio of each arm's labels to
+PEBBLE's.
 """
 
 import argparse
@@ -26,7 +32,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+import plot
 import results_page as page
+from results_recount import last_correlations
 
 SCREEN = page.GRIDS / "pending" / "label-response-screen.yml"
 SCREEN_PAGE = page.ROOT / "benchmarks" / "results" / "label_response_screen.md"
@@ -212,11 +220,153 @@ def bootstrap_labels(
     }
 
 
+FLOORS = page.ROOT / "benchmarks" / "results" / "label_response_floors.json"
+LADDER_PAGE = page.ROOT / "benchmarks" / "results" / "label_response.md"
+LADDER_FIGURE = page.ROOT / "benchmarks" / "results" / "figures" / "label_response.png"
+
+
+def random_return(task: str, episodes: int = 10, seed: int = 0) -> float:
+    """The mean true return of a uniformly random policy on ``task``: where a share of the ceiling starts."""
+    import gymnasium as gym
+
+    import sb3_pride  # noqa: F401 (registers the sb3_pride/... envs)
+
+    env = gym.make(page.run.env_id(task))
+    env.action_space.seed(seed)
+    total = 0.0
+    for episode in range(episodes):
+        env.reset(seed=seed + episode)
+        done = False
+        while not done:
+            _, reward, terminated, truncated, _ = env.step(env.action_space.sample())
+            total, done = total + float(reward), terminated or truncated
+    return total / episodes
+
+
+def floor_of(task: str) -> float:
+    """``random_return``, measured once per task and kept in ``label_response_floors.json``."""
+    floors = json.loads(FLOORS.read_text()) if FLOORS.exists() else {}
+    if task not in floors:
+        floors[task] = round(random_return(task), 3)
+        FLOORS.write_text(json.dumps(floors, indent=1, sort_keys=True) + "\n")
+    return floors[task]
+
+
+def mean_interval(values: np.ndarray, reps: int = 10_000, seed: int = 0) -> tuple[float, float, float]:
+    """The mean of ``values`` and its 95% percentile bootstrap interval."""
+    draws = values[np.random.default_rng(seed).integers(0, len(values), size=(reps, len(values)))].mean(axis=1)
+    low, high = np.quantile(draws, [0.025, 0.975])
+    return float(values.mean()), float(low), float(high)
+
+
+def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str, Any]:
+    """Each task's arms, budget by budget (shares of the ceiling, last corr), and each arm's labels to the target."""
+    rows, _, _ = page.collect(grid_files)
+    tasks: dict[str, dict[str, Any]] = {}
+    for row in rows.values():
+        runs = page.runs_of(row)
+        if not runs:
+            continue
+        task = tasks.setdefault(row["task"], {"arms": {}, "ceiling": None})
+        returns = plot.primary_returns(runs)
+        if row["algo"] == "sac":
+            task["ceiling"] = float(returns.mean())
+            continue
+        corr = last_correlations(runs)
+        task["arms"].setdefault(row["configuration"], {})[int(row["feedback"])] = {
+            "returns": returns,
+            "corr": None if corr is None else float(corr.mean()),
+        }
+    for name, task in tasks.items():
+        floor, ceiling = floor_of(name), task["ceiling"]
+        for points in task["arms"].values():
+            for point in points.values():
+                if ceiling is not None and ceiling != floor:
+                    point["share"] = mean_interval((point["returns"] - floor) / (ceiling - floor))
+        pebble = task["arms"].get(reference)
+        task["labels"] = {}
+        for arm, points in task["arms"].items():
+            budgets = sorted(set(points) & set(pebble or {}))
+            if pebble is None or len(budgets) < 2:
+                continue
+            task["labels"][arm] = bootstrap_labels(
+                budgets, [pebble[b]["returns"] for b in budgets], [points[b]["returns"] for b in budgets], floor
+            )
+    return tasks
+
+
+def interval_text(values: list[float]) -> str:
+    return "[" + ", ".join("∞" if v == math.inf else f"{v:.2f}" if v < 10 else f"{v:.0f}" for v in values) + "]"
+
+
+def render_ladders(tasks: dict[str, Any], reference: str = "pebble") -> str:
+    lines = ["# How many labels a policy needs", "", "Generated by `python benchmarks/label_response.py ladders ...`."]
+    for name, task in tasks.items():
+        lines += [
+            "",
+            f"## {name}",
+            "",
+            "| arm | labels | seeds | share of SAC [95% CI] | corr(r̂, r), last |",
+            "|---|---|---|---|---|",
+        ]
+        for arm, points in task["arms"].items():
+            for budget in sorted(points):
+                point = points[budget]
+                share = point.get("share")
+                share_text = "—" if share is None else f"{share[0]:.2f} {interval_text(list(share[1:]))}"
+                corr = "—" if point["corr"] is None else f"{point['corr']:.2f}"
+                lines.append(f"| {arm} | {budget} | {len(point['returns'])} | {share_text} | {corr} |")
+        if task["labels"]:
+            lines += ["", f"Labels to the target ({TARGET_SHARE:.0%} of {reference} at the ladder's top budget):", ""]
+            lines += ["| arm | labels [95% CI] | ÷ " + reference + " [95% CI] |", "|---|---|---|"]
+            for arm, read in task["labels"].items():
+                labels, ratio = read["arm"], read["ratio"]
+                lines.append(
+                    f"| {arm} | {labels['labels']:.0f} {interval_text(labels['interval'])} | "
+                    f"{ratio['value']:.2f} {interval_text(ratio['interval'])} |"
+                )
+    return "\n".join(lines) + "\n"
+
+
+def draw_ladders(tasks: dict[str, Any], path: Path) -> None:
+    """Share of the ceiling against labels (log axis), one panel per task, each arm with its 95% interval."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    figure, axes = plt.subplots(1, max(len(tasks), 1), figsize=(4.5 * max(len(tasks), 1), 3.5), squeeze=False)
+    for axis, (name, task) in zip(axes[0], tasks.items(), strict=False):
+        for arm, points in task["arms"].items():
+            budgets = [b for b in sorted(points) if "share" in points[b]]
+            shares = np.array([points[b]["share"] for b in budgets]).reshape(-1, 3)
+            axis.plot(budgets, shares[:, 0], marker="o", label=arm)
+            axis.fill_between(budgets, shares[:, 1], shares[:, 2], alpha=0.2)
+        axis.set_xscale("log", base=2)
+        axis.set(title=name, xlabel="labels", ylabel="share of SAC's return")
+        axis.legend(fontsize="small")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    figure.tight_layout()
+    figure.savefig(path, dpi=120)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["screen"])
+    parser.add_argument("what", choices=["screen", "ladders"])
+    parser.add_argument("grids", nargs="*", type=Path, help="ladders: the ladder grid files")
+    parser.add_argument("--reference", default="pebble", help="ladders: the arm whose top budget sets the target")
     parser.add_argument("--print", action="store_true", help="print the page, write no file")
     args = parser.parse_args()
+    if args.what == "ladders":
+        if not args.grids:
+            parser.error("ladders needs the ladder grid files")
+        tasks = read_ladders(args.grids, args.reference)
+        text = render_ladders(tasks, args.reference)
+        if not args.print:
+            LADDER_PAGE.write_text(text)
+            draw_ladders(tasks, LADDER_FIGURE)
+        print(text if args.print else f"wrote {page.relative(LADDER_PAGE)} and {page.relative(LADDER_FIGURE)}")
+        return
     data = read_screen()
     text = render_screen(data)
     if args.print:

@@ -307,6 +307,8 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
     if spec["algo"] != "sac":
         kwargs["max_feedback"] = spec["feedback"]
+        if spec.get("sessions"):  # one schedule shape at every budget of a ladder: the budget in this many sessions
+            kwargs["queries_per_session"] = -(-spec["feedback"] // spec["sessions"])
     if spec["algo"] == "pride":
         kwargs["synthetic_ratio"] = spec["ratio"]
     kwargs = merge(kwargs, spec.get("overrides") or {})

@@ -1337,3 +1337,19 @@ def test_a_comparison_across_cpu_kinds_is_marked_as_one_across_code_versions(pag
     entry = {"p": 0.6, "ci95": [0.4, 0.8], "mann_whitney_p": 0.2, "code_differs": False, "cpu_differs": True}
     assert page.p_text(entry).endswith(page.CODE_MARK) and "more than one CPU kind" in page.CODE_NOTE
     assert not page.p_text({**entry, "cpu_differs": False}).endswith(page.CODE_MARK)
+
+
+def test_a_ladder_asks_each_budget_in_the_same_number_of_sessions(grid, run, tmp_path):
+    """A grid's ``sessions``: every budget of a ladder asked in that many feedback sessions (one schedule shape), its
+    value checked; the worker sets queries_per_session = ceil(budget / sessions)."""
+    path = write_grid(
+        tmp_path,
+        "sessions: 5\nruns:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0, feedback: [8, 64, 100]}\n",
+    )
+    specs = grid.expand(grid.load_grid(path))
+    assert [spec["sessions"] for spec in specs] == [5, 5, 5]
+    assert [-(-spec["feedback"] // spec["sessions"]) for spec in specs] == [2, 13, 20]
+    (tmp_path / "bad").mkdir()
+    bad = write_grid(tmp_path / "bad", "sessions: 0\nruns:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: 0}\n")
+    with pytest.raises(grid.GridError, match="sessions is a positive integer"):
+        grid.load_grid(bad)

@@ -1,6 +1,7 @@
 """The label-response study's reading: the screen's plateau rule and labels to the target, each shown to fail on a
 curve that should fail it."""
 
+import json
 import math
 
 import numpy as np
@@ -72,3 +73,43 @@ def test_the_screen_selects_the_cheapest_qualifying_tasks_with_one_from_dm_contr
     assert selection["held_out"] == ["InvertedDoublePendulum-v5"]
     tasks["Reacher-v5"]["seeds"] = 2
     assert study.select(tasks)["studied"] is None  # no selection before every seed is in
+
+
+def write_ladder_run(out, algo: str, seed: int, budget: int | None, primary: float) -> None:
+    """A finished run as benchmarks/run.py leaves it, whose last three evaluations average ``primary``."""
+    name = f"{algo}_walker-walk_s{seed}" + ("" if budget is None else f"_fb{budget}") + ("_u0.25" if algo == "pride" else "")
+    folder = out / name
+    folder.mkdir(parents=True)
+    settings = {"algo": algo, "task": "walker-walk", "seed": seed, "feedback": budget, "ratio": None, "tag": ""}
+    (folder / "settings.json").write_text(json.dumps(settings))
+    rows = "".join(f"{step},{primary},\n" for step in (5000, 10000, 15000))
+    (folder / "curve.csv").write_text("step,true_return,success\n" + rows)
+    (folder / "result.json").write_text(json.dumps({"final_return": primary, "feedback_asked": budget}))
+
+
+def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders(study, tmp_path, monkeypatch):
+    """A ladder grid's runs: PEBBLE reaching the ceiling at 64 labels, an arm one rung earlier (half the labels): the
+    page shows each point's share of SAC's return, each arm's labels to the target and the ratio near 0.5."""
+    out = tmp_path / "runs"
+    pebble, early = [100, 400, 700, 900, 1000], [400, 700, 900, 1000, 1000]
+    for seed in range(4):
+        write_ladder_run(out, "sac", seed, None, 1000 + seed)
+        for budget, a, b in zip(LADDER, pebble, early, strict=True):
+            write_ladder_run(out, "pebble", seed, budget, a + 5 * seed)
+            write_ladder_run(out, "pride", seed, budget, b + 5 * seed)
+    grid = tmp_path / "ladder.yml"
+    grid.write_text(
+        f"out: {out}\nruns:\n  - {{configurations: [pebble, pride], tasks: [walker-walk], seeds: 0-3, feedback: {LADDER}}}\n"
+        "  - {configurations: [sac], tasks: [walker-walk], seeds: 0-3}\n"
+    )
+    monkeypatch.setattr(study, "floor_of", lambda task: 0.0)
+    tasks = study.read_ladders([grid])
+    walker = tasks["walker-walk"]
+    assert walker["ceiling"] == pytest.approx(1001.5)
+    assert walker["arms"]["pebble"][8]["share"][0] == pytest.approx((100 + 7.5) / 1001.5)
+    assert walker["labels"]["pride"]["ratio"]["value"] == pytest.approx(0.5, abs=0.1)
+    assert walker["labels"]["pebble"]["ratio"]["value"] == pytest.approx(1.0)
+    text = study.render_ladders(tasks)
+    assert "## walker-walk" in text and "| pride | 8 | 4 |" in text and "÷ pebble" in text
+    study.draw_ladders(tasks, tmp_path / "figure.png")
+    assert (tmp_path / "figure.png").stat().st_size > 0
