@@ -186,3 +186,18 @@ def test_sigkill_then_resume_loses_no_answer_and_asks_none_twice(tiny_kwargs, tm
     assert len(set(ids)) == len(ids) == 50
     if algo is PRIDE:
         assert model.diffusion_retrains >= 3  # the diffusion schedule went on too
+
+
+def test_a_models_journal_is_found_from_its_own_folder_before_the_working_folders(tmp_path, monkeypatch):
+    """Loading a model from another folder that holds another run's journal of the same name takes the model's own."""
+    from sb3_pride.common.journal import find_journal
+
+    run, other = tmp_path / "run", tmp_path / "other"
+    run.mkdir(), other.mkdir()
+    (run / "preferences.jsonl").write_text("the model's\n")
+    (other / "preferences.jsonl").write_text("another run's\n")
+    monkeypatch.chdir(other)
+    assert Path(find_journal("preferences.jsonl", run / "model.zip")).read_text() == "the model's\n"
+    monkeypatch.chdir(tmp_path)  # resumed where it ran: the path it was given, from the model's folder's parents
+    assert Path(find_journal("run/preferences.jsonl", "run/model.zip")).read_text() == "the model's\n"
+    assert find_journal("gone.jsonl", run / "model.zip") == "gone.jsonl"  # missing: said missing by its caller

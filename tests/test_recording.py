@@ -121,7 +121,8 @@ def test_a_segment_crossing_the_windows_edge_is_never_offered():
     model.learn(240)  # 9.6 episodes
     buffer, recording = model.replay_buffer, teacher.clips.renderer.recording
     assert np.isnan(buffer.render_states[:200, 0]).all() and np.isfinite(buffer.render_states[200:240, 0]).all()
-    pairs = sample_segment_pairs(buffer, 200, 10, 100, np.random.default_rng(0))
+    with pytest.warns(UserWarning, match="recorded_episodes >= max_query_episodes"):  # said, not silently fewer
+        pairs = sample_segment_pairs(buffer, 200, 10, 100, np.random.default_rng(0))
     assert pairs is not None
     episodes = set(pairs.render_states[..., 1].ravel())
     assert episodes == {8.0, 9.0}  # the last finished episode and the running one

@@ -219,12 +219,14 @@ class PreferenceJournal:
 
 def find_journal(journal: str, model_path: str | os.PathLike) -> str:
     """
-    Where the preference journal of a model saved at ``model_path`` is now: ``journal`` as the run gave it, when it
-    names a file from the working folder (or is absolute and there); else, for a relative path, the first file it
-    names from the model file's folder or one of that folder's parents (the folder the run was made in); else a file
-    of its name beside the model file (a run's folder moved whole). ``journal`` itself when none is found.
+    Where the preference journal of a model saved at ``model_path`` is now, found from the model's own folder first:
+    ``journal`` as the run gave it when it is absolute and there; for a relative path, the first file it names from
+    the model file's folder or one of that folder's parents (the folder the run was made in); else a file of its name
+    beside the model file (a run's folder moved whole); else ``journal`` from the working folder. ``journal`` itself
+    when none is found. Another run's journal of the same name in the working folder is never taken before the
+    model's own.
     """
-    if os.path.isfile(journal):
+    if os.path.isabs(journal) and os.path.isfile(journal):
         return journal
     folder = Path(os.path.abspath(model_path)).parent
     bases = [] if os.path.isabs(journal) else [folder, *folder.parents]

@@ -14,6 +14,12 @@ from sb3_pride.common.journal import query_id
 from sb3_pride.common.query_selection import QUERY_SELECTIONS, pair_features, select_queries
 from sb3_pride.common.utils import check_choice, check_positive_ints, check_real
 
+#: said once when some segments queries may be drawn from cannot be shown (their recorded frames were dropped)
+HIDDEN_SEGMENTS = (
+    "some segments of the episodes queries are drawn from can no longer be shown (the teacher dropped their recorded "
+    "frames): queries come from the others; give WebTeacher recorded_episodes >= max_query_episodes and enough "
+    "recording_bytes"
+)
 #: how many times, at most, a session draws again when its candidates were asked before (``QuerySampler.fresh_pairs``)
 REDRAWS = 10
 
@@ -145,6 +151,8 @@ def sample_segment_pairs(
         hidden = np.cumsum(np.isnan(buffer.render_states[rows, :, 0]), axis=0)
         hidden = np.vstack([np.zeros((1, buffer.n_envs), dtype=hidden.dtype), hidden])
         showable = hidden[starts + segment_length, envs] == hidden[starts, envs]
+        if not showable.all():
+            warnings.warn(HIDDEN_SEGMENTS, stacklevel=2)
         starts, envs = starts[showable], envs[showable]
         if len(starts) == 0:
             return None

@@ -91,7 +91,7 @@ def saved_journal(path: Any) -> str | None:
 def load_kwargs(path: Any, kwargs: dict[str, Any], device: Any, custom_objects: dict[str, Any] | None) -> dict[str, Any]:
     """
     ``load()``'s keyword arguments: the run's ``preference_journal`` found wherever the model is loaded from
-    (``find_journal``: from the working folder, else from the model file's folder up, else beside it) unless given,
+    (``find_journal``: from the model file's folder up, else beside it, else from the working folder) unless given,
     and the structured settings given merged into the saved ones (``loaded_settings``). A model saved by 0.1 or 0.2
     is refused (``refuse_earlier_versions``), and so is a name of theirs.
     """

@@ -131,7 +131,8 @@ class LearnedReward:
         except FileNotFoundError:
             raise ValueError(f"reward file {os.fspath(path)} does not exist") from None
         except Exception as error:
-            raise ValueError(f"reward file {os.fspath(path)} is not a reward model saved by sb3_pride: {error}") from None
+            why = (str(error).strip().splitlines() or [type(error).__name__])[0]  # torch's own message runs to a page
+            raise ValueError(f"reward file {os.fspath(path)} is not a reward model saved by sb3_pride: {why}") from None
         if not isinstance(record, dict) or record.get("format") != FILE_FORMAT:
             raise ValueError(f"reward file {os.fspath(path)} is not a reward model saved by sb3_pride ({FILE_FORMAT})")
         reward = cls.new(
