@@ -149,6 +149,7 @@ def test_fit_from_journals_ranks_held_out_pairs_and_a_flipped_teacher_reads_belo
         fit_reward([tmp_path / "other.jsonl"], env="MountainCarContinuous-v0")
 
 
+@pytest.mark.slow
 def test_the_command_line_fits_and_reports(trained, tmp_path):
     model, folder = trained
     fitted = subprocess.run(

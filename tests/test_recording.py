@@ -113,6 +113,7 @@ def test_a_clip_of_recorded_frames_is_the_frames_pendulum_rendered_at_those_step
     teacher.close()
 
 
+@pytest.mark.slow
 def test_a_segment_crossing_the_windows_edge_is_never_offered():
     """The recording keeps 2 episodes; the sampler may draw from 100: no sampled segment holds a frame it dropped."""
     env = gym.make("Pendulum-v1", render_mode="rgb_array", max_episode_steps=25)

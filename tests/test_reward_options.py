@@ -30,9 +30,9 @@ class WeightDecay(RewardOption):
     def setup(self, learner) -> None:
         self.calls["setup"] += 1
 
-    def prepare(self, learner, preferences, buffer, queries, rng) -> None:
-        assert len(preferences) > 0 and buffer is not None and queries is not None  # what REED and SURF get
-        assert isinstance(rng, np.random.Generator)
+    def prepare(self, learner, data) -> None:
+        assert len(data.preferences) > 0 and data.buffer is not None and data.queries is not None  # what REED and SURF get
+        assert isinstance(data.rng, np.random.Generator)
         self.calls["prepare"] += 1
 
     def choose_labels(self, ensemble, inputs, labels, given):
@@ -58,6 +58,7 @@ def weight_norm(model: PEBBLE) -> float:
     return float(sum((w.detach() ** 2).sum() for w in model.reward_model.members.weights))
 
 
+@pytest.mark.slow
 def test_an_option_of_the_users_own_plugs_into_the_training_loop(weight_decay, tiny_kwargs, tmp_path):
     models = {}
     for on in (False, True):

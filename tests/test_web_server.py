@@ -215,6 +215,7 @@ def test_a_refused_body_is_not_read(attached):
     assert get(teacher.url + f"api/answer?token={token}", b'{"id": "x"}') == 400
 
 
+@pytest.mark.slow
 def test_the_probe_reads_that_the_server_keeps_its_limits():
     """benchmarks/web_probe.py, small: two annotators comparing notes see known-answer questions and queries alike, the
     page refuses framing, refused bodies are not read, slow sockets are dropped at their deadline and the connections'

@@ -16,10 +16,8 @@ from sb3_pride.reward.ensemble import EnsembleMLP, RewardEnsemble
 from sb3_pride.reward.options import RewardOption
 
 if TYPE_CHECKING:
-    from sb3_pride.common.buffers import PreferenceReplayBuffer
-    from sb3_pride.common.queries import QuerySampler
     from sb3_pride.reward.learner import RewardLearner
-    from sb3_pride.reward.ensemble import PreferenceDataset
+    from sb3_pride.reward.options import LearningData
 
 CONSISTENCY_OPTIMIZERS = ("adam", "sgd")
 
@@ -84,18 +82,11 @@ class DynamicsConsistency(RewardOption):
         """REED's heads on the learner's ensemble (``ConsistencyModel``), saved with the model as ``consistency``."""
         learner.consistency = ConsistencyModel(learner.ensemble, learner.obs_dim, self)
 
-    def prepare(
-        self,
-        learner: "RewardLearner",
-        preferences: "PreferenceDataset",
-        buffer: "PreferenceReplayBuffer | None",
-        queries: "QuerySampler | None",
-        rng: np.random.Generator,
-    ) -> None:
+    def prepare(self, learner: "RewardLearner", data: "LearningData") -> None:
         """``epochs`` passes over the stored transitions (at most ``max_transitions``) before the labels are learned."""
-        assert buffer is not None and learner.consistency is not None  # needs_transitions; made by setup
-        transitions = stored_transitions(buffer, rng, self.max_transitions)
-        self.loss = learner.consistency.train_epochs(*transitions, rng)
+        assert data.buffer is not None and learner.consistency is not None  # needs_transitions; made by setup
+        transitions = stored_transitions(data.buffer, data.rng, self.max_transitions)
+        self.loss = learner.consistency.train_epochs(*transitions, data.rng)
 
     def finish(self) -> dict[str, Any]:
         return {"consistency_loss": getattr(self, "loss", None)}

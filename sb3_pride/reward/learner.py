@@ -19,6 +19,7 @@ from sb3_pride.reward.ensemble import PreferenceDataset, RewardEnsemble, check_t
 from sb3_pride.reward.options import (
     REWARD_OPTIONS,
     ExplorationBonus,
+    LearningData,
     PseudoLabels,
     RewardOption,
     RobustLabels,
@@ -189,8 +190,9 @@ class RewardLearner:
                 f"reward_kwargs: {on} learn from the agent's stored transitions, which r̂ fitted from preferences alone "
                 "does not have: turn them off"
             )
+        data = LearningData(preferences, buffer, queries, rng)
         for option in self.options.values():
-            option.prepare(self, preferences, buffer, queries, rng)
+            option.prepare(self, data)
         loss, accuracy, epochs = self.ensemble.train_epochs(
             preferences,
             self.epochs,

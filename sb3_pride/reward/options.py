@@ -23,15 +23,28 @@ if TYPE_CHECKING:
     from sb3_pride.reward.ensemble import PreferenceDataset, RewardEnsemble
 
 
+@dataclass(frozen=True)
+class LearningData:
+    """
+    What the options are given before a feedback session's training: D, the agent's replay buffer and the query
+    sampler (both None where r̂ is fitted from journals alone, which an option with ``needs_transitions`` refuses), and
+    the learner's random generator.
+    """
+
+    preferences: "PreferenceDataset"
+    buffer: "PreferenceReplayBuffer | None"
+    queries: "QuerySampler | None"
+    rng: np.random.Generator
+
+
 class RewardOption:
     """
     The hooks of the reward learner's training loop an option may fill; each does nothing by default. The options on
     are called in the order they were registered, at every feedback session:
 
     - ``setup(learner)``: once, when the learner is made (e.g. REED's heads on the ensemble's encoder);
-    - ``prepare(learner, preferences, buffer, queries, rng)``: before the session's training, with what the learner
-      has: D, the agent's replay buffer and the query sampler (both None where r̂ is fitted from journals alone, which
-      an option with ``needs_transitions`` refuses), and the learner's random generator;
+    - ``prepare(learner, data)``: before the session's training, with what the learner has (``LearningData``: D, the
+      agent's replay buffer and the query sampler, the learner's random generator);
     - ``choose_labels(ensemble, inputs, labels, given)``: before each epoch, which pairs it trains on and with which
       labels (RIME): ``(rows of D, labels of every pair)``, or None to leave them as they are;
     - ``extra_loss(ensemble, n_pairs, rng, temporal_crop)``: at each minibatch of ``n_pairs`` pairs per member, a loss
@@ -47,14 +60,7 @@ class RewardOption:
     def setup(self, learner: "RewardLearner") -> None:
         pass
 
-    def prepare(
-        self,
-        learner: "RewardLearner",
-        preferences: "PreferenceDataset",
-        buffer: "PreferenceReplayBuffer | None",
-        queries: "QuerySampler | None",
-        rng: np.random.Generator,
-    ) -> None:
+    def prepare(self, learner: "RewardLearner", data: "LearningData") -> None:
         pass
 
     def choose_labels(
@@ -199,18 +205,11 @@ class PseudoLabels(RewardOption):
 
     needs_transitions: ClassVar[bool] = True
 
-    def prepare(
-        self,
-        learner: "RewardLearner",
-        preferences: "PreferenceDataset",
-        buffer: "PreferenceReplayBuffer | None",
-        queries: "QuerySampler | None",
-        rng: np.random.Generator,
-    ) -> None:
+    def prepare(self, learner: "RewardLearner", data: "LearningData") -> None:
         """Draw ``unlabeled_per_label`` unlabelled pairs per label from the buffer, as the query sampler draws queries."""
-        assert buffer is not None and queries is not None  # needs_transitions
-        n = min(self.unlabeled_per_label * len(preferences), self.max_unlabeled)
-        pairs = queries.unlabeled_pairs(buffer, n, rng)
+        assert data.buffer is not None and data.queries is not None  # needs_transitions
+        n = min(self.unlabeled_per_label * len(data.preferences), self.max_unlabeled)
+        pairs = data.queries.unlabeled_pairs(data.buffer, n, data.rng)
         self.unlabeled = th.as_tensor(pairs, device=learner.ensemble.device) if pairs is not None and len(pairs) else None
 
     def extra_loss(
