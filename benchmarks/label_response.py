@@ -126,7 +126,8 @@ def render_screen(data: dict[str, Any]) -> str:
         lines.append(
             f"| {task} | {entry['seeds']} of {entry['planned']} | {entry['steps']} | {entry['first']:.1f} | "
             f"{entry['best']:.1f} | {entry['last_third']:.1f} | {entry['plateau_gap']:.3f} | "
-            f"{minutes['mean']:.1f} / {minutes['max']:.1f} | {'yes' if entry['qualifies'] else 'no'} |"
+            f"{minutes['mean']:.1f} / {minutes['max']:.1f} | {'yes' if entry['qualifies'] else 'no'}"
+            f"{' so far' if entry['seeds'] < entry['planned'] else ''} |"
         )
     selection = data["selection"]
     lines.append("")
