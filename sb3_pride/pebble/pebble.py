@@ -4,7 +4,7 @@ import os
 import pathlib
 import time
 from collections.abc import Sequence
-from typing import Any, ClassVar, TypeVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch as th
@@ -39,7 +39,6 @@ from sb3_pride.pebble.checks import (
     preference_settings,
 )
 
-SelfPEBBLE = TypeVar("SelfPEBBLE", bound="PEBBLE")
 #: the constructor arguments PEBBLE passes on to SAC as they are
 SAC_ARGUMENTS = set(inspect.signature(SAC.__init__).parameters) - {"self", "env", "replay_buffer_class", "_init_setup_model"}
 

@@ -40,6 +40,8 @@ class ReplayRewards:
 
     def __init__(self, learner: RewardLearner, state_entropy: StateEntropyReward, algorithm: TrainingState):
         self.learner, self.state_entropy, self.algorithm = learner, state_entropy, algorithm
+        #: the recent rows and the buffer position they were read at: read again only once the buffer has moved
+        self._recent: tuple[tuple[int, int, bool], np.ndarray] | None = None
 
     @property
     def pretraining(self) -> bool:
@@ -67,7 +69,13 @@ class ReplayRewards:
     @property
     def recent_rows(self) -> np.ndarray | None:
         """The rows of the most recent episodes (the queries' episodes) while the hybrid replay is on, else None."""
-        return self.algorithm.query_sampler.recent_rows(self.algorithm.real_buffer) if self.recent_share > 0 else None
+        if self.recent_share == 0:
+            return None
+        buffer = self.algorithm.real_buffer
+        where = (id(buffer), buffer.pos, buffer.full)  # the same for every gradient step of one train() call
+        if self._recent is None or self._recent[0] != where:
+            self._recent = where, self.algorithm.query_sampler.recent_rows(buffer)
+        return self._recent[1]
 
     def new_rewards(self, observations: np.ndarray, actions: np.ndarray) -> np.ndarray:
         """r̂ of transitions being added, or 0 before r̂ has learned from labels (the first relabel overwrites it)."""
