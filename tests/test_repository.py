@@ -366,3 +366,20 @@ def test_tests_use_only_public_names_of_the_package() -> None:
         for use in private_uses(path.read_text(encoding="utf-8"), names)
     ]
     assert not offending, "tests use private names of sb3_pride:\n" + "\n".join(offending)
+
+
+@pytest.mark.slow
+def test_the_wheel_smoke_script_runs_against_this_tree(tmp_path) -> None:
+    """
+    CI's last step runs ``.ci/wheel_smoke.py`` against the installed wheel; the suite runs the same script against the
+    source tree, from outside it, so a public name it uses that was renamed fails here and not only after the wheel.
+    """
+    import os
+    import sys
+
+    env = {**os.environ, "SB3_PRIDE_SMOKE_FROM_SOURCE": "1", "PYTHONPATH": str(ROOT)}
+    done = subprocess.run(
+        [sys.executable, str(ROOT / ".ci" / "wheel_smoke.py")], cwd=tmp_path, env=env, capture_output=True, text=True
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "wheel OK" in done.stdout
