@@ -58,7 +58,7 @@ def test_the_screen_rule_takes_a_plateau_and_refuses_a_curve_still_rising(study)
 
 def test_the_screen_selects_the_cheapest_qualifying_tasks_with_one_from_dm_control(study):
     def entry(minutes: float, qualifies: bool, dmc: bool) -> dict:
-        return {"seeds": 3, "planned": 3, "minutes": {"mean": minutes}, "qualifies": qualifies, "dm_control": dmc}
+        return {"seeds": 3, "planned": 3, "minutes": {"median": minutes}, "qualifies": qualifies, "dm_control": dmc}
 
     tasks = {
         "Pendulum-v1": entry(5, True, False),
