@@ -83,8 +83,8 @@ def run_name(spec: dict[str, Any]) -> str:
         name += f"_fb{spec['feedback']}"
     if spec["algo"] == "pride":
         name += f"_u{spec['ratio']}"
-    if spec.get("tag"):
-        name += f"_{spec['tag']}"
+    if spec.get("tag"):  # a tag may name the budget ({feedback}): one SAC run per budget's r̂
+        name += "_" + spec["tag"].format(feedback=spec["feedback"])
     return name
 
 

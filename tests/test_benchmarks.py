@@ -233,6 +233,21 @@ def test_the_arms_of_a_grid_in_blocks_of_their_own_interleave_by_seed(grid, tmp_
     ]
 
 
+def test_sac_on_each_budgets_saved_reward_is_a_run_per_budget_that_starts_from_that_runs_reward(grid, tmp_path):
+    text = (
+        "tier: label-response\nout: runs\nruns:\n"
+        "  - {configurations: [sac_on_pebble_reward], tasks: [Pendulum-v1], seeds: [0], feedback: [16, 64]}\n"
+    )
+    specs = grid.expand(grid.load_grid(write_grid(tmp_path, text)))
+    names = [grid.run.run_name(spec) for spec in specs]
+    assert names == ["sac_Pendulum-v1_s0_on_pebble_fb16_reward", "sac_Pendulum-v1_s0_on_pebble_fb64_reward"]
+    starts_from = [grid.run.needed_runs(spec, tmp_path / "runs") for spec in specs]
+    assert starts_from == [
+        [tmp_path / "runs" / "pebble_Pendulum-v1_s0_fb16"],
+        [tmp_path / "runs" / "pebble_Pendulum-v1_s0_fb64"],
+    ]
+
+
 def test_budget_and_ratio_left_out_of_a_grid_are_each_tasks_yaml_values(grid, tmp_path):
     path = write_grid(
         tmp_path, "runs:\n  - {configurations: [pride, pebble], tasks: [cheetah-run, button-press-v3], seeds: [3]}\n"
