@@ -19,6 +19,8 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
     sessions: 5                        # optional: the budget asked in this many feedback sessions at every budget of a
                                        # ladder (queries_per_session = ceil(budget / sessions): PEBBLE's constant
                                        # schedule; PRIDE's front-loaded one asks it in five sessions at any budget)
+    ladder: true                       # optional: a label-response ladder, read by benchmarks/label_response.py into
+                                       # the pages' "How many labels" section (SAC: the ceiling; sac_on_*: r̂ alone)
     repeats: benchmarks/results/runs  # optional: runs of the same names it re-runs (benchmarks/grids/repeats/), to
                                        # check with benchmarks/same_seed.py that they repeat evaluation by evaluation
     claims:                            # optional: rules written before the runs, read by benchmarks/results_page.py
@@ -72,6 +74,7 @@ GRID_KEYS = {
     "comparisons",
     "pride_settings",
     "sessions",
+    "ladder",
     "claims",
     "check",
     "repeats",
@@ -142,6 +145,10 @@ def load_grid(path: Path) -> dict[str, Any]:
     sessions = grid.get("sessions")
     if sessions is not None and not (type(sessions) is int and sessions >= 1):
         raise GridError(f"{path}: sessions is a positive integer (the feedback sessions that ask a budget), got {sessions!r}")
+    if grid.get("ladder", False) not in (True, False):
+        raise GridError(
+            f"{path}: ladder is true or false (whether the grid is a label-response ladder), got {grid['ladder']!r}"
+        )
     if not isinstance(grid.get("claims", []), list):
         raise GridError(f"{path}: claims is a list of claims, each a mapping of {', '.join(sorted(CLAIM_KEYS))}")
     for i, claim in enumerate(grid.get("claims") or []):

@@ -1,24 +1,24 @@
 """
 How many labels does a policy need? The label-response study's reading of its runs.
 
-    python benchmarks/label_response.py screen    # which candidate tasks qualify, by the rule of the screen's grid file
-    python benchmarks/label_response.py ladders GRID...   # label-response curves, labels to the target, the figure
+    python benchmarks/label_response.py screen            # which candidate tasks qualify, by the screen's rule
+    python benchmarks/label_response.py ladders GRID...   # print ladders' tables (e.g. a grid still in pending/)
 
-``screen`` reads the SAC runs of ``benchmarks/grids/pending/label-response-screen.yml`` (pending until its runs are in) and applies the rule its description
-states (written before its runs): per task, the mean curve over seeds; its plateau gap, (best - mean of the last third
-of the evaluations) / (best - first evaluation), must be at most ``PLATEAU_GAP``, and the median of its runs' wall
-times must be at most ``MAX_MINUTES`` (runs on a shared machine also time their neighbours); of the qualifying tasks the three cheapest are studied (at least one from dm_control)
-and the next is held out. It writes ``benchmarks/results/label_response_screen.md`` and ``.json``.
+``screen`` reads the SAC runs of the screen's grid files (pending until their runs are in) and applies the rule their
+descriptions state (written before their runs): per task, the mean curve over seeds; its plateau gap, (best - mean of
+the last third of the evaluations) / (best - first evaluation), must be at most ``PLATEAU_GAP``, and the median of
+its runs' wall times must be at most ``MAX_MINUTES`` (runs on a shared machine also time their neighbours); of the
+qualifying tasks the three cheapest are studied (at least one from dm_control) and the next is held out. It writes
+``benchmarks/results/label_response_screen.md`` and ``.json``.
 
-The ladders' reading (labels to the target, with a bootstrap interval over seeds) is :func:`labels_to_target` and
-:func:`bootstrap_labels`: the target is ``TARGET_SHARE`` of what PEBBLE reaches at the ladder's top budget, the labels
-an arm needs are interpolated on the log-budget axis where its mean return first reaches the target, and an arm that
-never reaches it within the ladder needs more than the ladder holds (``inf``). ``ladders`` reads ladder grids (one
-configuration at several budgets, SAC on the true reward beside it) into ``benchmarks/results/label_response.md``
-and ``figures/label_response.png``: per task and arm, the share of SAC's return at each budget, (R - R_random) /
-(R_SAC - R_random) with ``R_random`` a uniformly random policy's return, with a 95% bootstrap interval over seeds and
-the mean last corr(r̂, r); the labels each arm needs to reach the target; and the ratio of each arm's labels to
-PEBBLE's.
+The ladders (grid files with ``ladder: true``) are read by ``benchmarks/results_page.py`` through
+:func:`read_ladders` into ``results.json``, the README, the results README, the docs' results page and
+``figures/label_response.png``: per task and arm, the share of SAC's return at each budget, (R - R_random) /
+(R_SAC - R_random) with ``R_random`` a uniformly random policy's return, with a 95% bootstrap interval over seeds
+and the mean last corr(r̂, r); SAC from scratch on the final r̂ where a grid ran it; and the labels to the target
+(:func:`labels_to_target`, :func:`bootstrap_labels`): the target is ``TARGET_SHARE`` of what PEBBLE reaches at the
+ladder's top budget, the labels an arm needs are interpolated on the log-budget axis where its mean return first
+reaches it (``inf``: not within the ladder), and the ratio of each arm's labels to PEBBLE's.
 """
 
 import argparse
@@ -33,11 +33,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import plot
-import results_page as page
-from results_recount import last_correlations
+import run
+from grid import load_grid
+from results_recount import GRIDS, ROOT, collect, last_correlations, relative, runs_of
 
-SCREEN = page.GRIDS / "pending" / "label-response-screen.yml"
-SCREEN_PAGE = page.ROOT / "benchmarks" / "results" / "label_response_screen.md"
+SCREEN = GRIDS / "pending" / "label-response-screen.yml"
+SCREEN_PAGE = ROOT / "benchmarks" / "results" / "label_response_screen.md"
 #: the screen's rule (the grid file's description states it in words)
 PLATEAU_GAP = 0.05
 MAX_MINUTES = 30
@@ -61,10 +62,10 @@ def is_dm_control(task: str) -> bool:
 
 def read_screen(grid_file: Path = SCREEN, runs_folder: Path | None = None) -> dict[str, Any]:
     """Each task of the screen with its seeds' curves read by the rule, and the selection the rule makes."""
-    rows, _, _ = page.collect([grid_file], runs_folder)
+    rows, _, _ = collect([grid_file], runs_folder)
     tasks: dict[str, dict[str, Any]] = {}
     for row in rows.values():
-        runs = page.runs_of(row)
+        runs = runs_of(row)
         if not runs:
             tasks[row["task"]] = {"seeds": 0, "planned": len(row["specs"])}
             continue
@@ -111,7 +112,7 @@ def render_screen(data: dict[str, Any]) -> str:
         "# The label-response screen",
         "",
         "Generated by `python benchmarks/label_response.py screen` from the runs of "
-        f"`{page.relative(SCREEN)}` (SAC on the true reward, the tier's settings); the rule is that grid file's "
+        f"`{relative(SCREEN)}` (SAC on the true reward, the tier's settings); the rule is that grid file's "
         f"description: a task qualifies where its mean curve's plateau gap is at most {PLATEAU_GAP} and its median run "
         f"took at most {MAX_MINUTES} minutes (the machine is shared: a run's time also measures its neighbours).",
         "",
@@ -221,9 +222,8 @@ def bootstrap_labels(
     }
 
 
-FLOORS = page.ROOT / "benchmarks" / "results" / "label_response_floors.json"
-LADDER_PAGE = page.ROOT / "benchmarks" / "results" / "label_response.md"
-LADDER_FIGURE = page.ROOT / "benchmarks" / "results" / "figures" / "label_response.png"
+FLOORS = ROOT / "benchmarks" / "results" / "label_response_floors.json"
+FIGURE = ROOT / "benchmarks" / "results" / "figures" / "label_response.png"
 
 
 def random_return(task: str, episodes: int = 10, seed: int = 0) -> float:
@@ -232,7 +232,7 @@ def random_return(task: str, episodes: int = 10, seed: int = 0) -> float:
 
     import sb3_pride  # noqa: F401 (registers the sb3_pride/... envs)
 
-    env = gym.make(page.run.env_id(task))
+    env = gym.make(run.env_id(task))
     env.action_space.seed(seed)
     total = 0.0
     for episode in range(episodes):
@@ -260,89 +260,158 @@ def mean_interval(values: np.ndarray, reps: int = 10_000, seed: int = 0) -> tupl
     return float(values.mean()), float(low), float(high)
 
 
+def ladder_grids(files: list[Path]) -> list[Path]:
+    """The grid files among ``files`` that are label-response ladders (``ladder: true``)."""
+    return [path for path in files if load_grid(path).get("ladder")]
+
+
 def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str, Any]:
-    """Each task's arms, budget by budget (shares of the ceiling, last corr), and each arm's labels to the target."""
-    rows, _, _ = page.collect(grid_files)
-    tasks: dict[str, dict[str, Any]] = {}
+    """
+    Per task (JSON-ready, for ``results.json``): SAC's ceiling and a random policy's floor; each arm's points, budget
+    by budget (seeds, share of the ceiling with its 95% interval, mean last corr(r̂, r)); SAC from scratch on the
+    final r̂ of the runs of a budget where the grid ran it; and each arm's labels to the target beside PEBBLE's.
+    """
+    rows, _, _ = collect(grid_files)
+    found: dict[str, dict[str, Any]] = {}
     for row in rows.values():
-        runs = page.runs_of(row)
+        runs = runs_of(row)
         if not runs:
             continue
-        task = tasks.setdefault(row["task"], {"arms": {}, "ceiling": None})
+        task = found.setdefault(row["task"], {"arms": {}, "on_final_reward": {}, "ceiling": None})
         returns = plot.primary_returns(runs)
-        if row["algo"] == "sac":
-            task["ceiling"] = float(returns.mean())
-            continue
-        corr = last_correlations(runs)
-        task["arms"].setdefault(row["configuration"], {})[int(row["feedback"])] = {
-            "returns": returns,
-            "corr": None if corr is None else float(corr.mean()),
+        if row["configuration"] == "sac":
+            task["ceiling"] = returns
+        elif row["algo"] == "sac":  # SAC learning from the r̂ a ladder run saved
+            task["on_final_reward"].setdefault(row["configuration"], {})[int(row["feedback"])] = returns
+        else:
+            corr = last_correlations(runs)
+            task["arms"].setdefault(row["configuration"], {})[int(row["feedback"])] = (returns, corr)
+
+    def share(returns: np.ndarray, floor: float, ceiling: float | None) -> list[float] | None:
+        if ceiling is None or ceiling == floor:
+            return None
+        return [round(v, 4) for v in mean_interval((returns - floor) / (ceiling - floor))]
+
+    tasks = {}
+    for name, task in found.items():
+        floor = floor_of(name)
+        ceiling = None if task["ceiling"] is None else float(task["ceiling"].mean())
+
+        arms = {
+            arm: [
+                {
+                    "labels": b,
+                    "seeds": len(r),
+                    "share": share(r, floor, ceiling),
+                    "corr": None if c is None else round(float(c.mean()), 4),
+                }
+                for b, (r, c) in sorted(points.items())
+            ]
+            for arm, points in task["arms"].items()
         }
-    for name, task in tasks.items():
-        floor, ceiling = floor_of(name), task["ceiling"]
-        for points in task["arms"].values():
-            for point in points.values():
-                if ceiling is not None and ceiling != floor:
-                    point["share"] = mean_interval((point["returns"] - floor) / (ceiling - floor))
-        pebble = task["arms"].get(reference)
-        task["labels"] = {}
+        on_final = {
+            arm: [{"labels": b, "seeds": len(r), "share": share(r, floor, ceiling)} for b, r in sorted(points.items())]
+            for arm, points in task["on_final_reward"].items()
+        }
+        labels = {}
+        pebble = task["arms"].get(reference, {})
         for arm, points in task["arms"].items():
-            budgets = sorted(set(points) & set(pebble or {}))
-            if pebble is None or len(budgets) < 2:
-                continue
-            task["labels"][arm] = bootstrap_labels(
-                budgets, [pebble[b]["returns"] for b in budgets], [points[b]["returns"] for b in budgets], floor
-            )
-    return tasks
+            budgets = sorted(set(points) & set(pebble))
+            if len(budgets) >= 2:
+                labels[arm] = bootstrap_labels(
+                    budgets, [pebble[b][0] for b in budgets], [points[b][0] for b in budgets], floor
+                )
+        tasks[name] = {
+            "floor": floor,
+            "ceiling": ceiling,
+            "ceiling_seeds": 0 if task["ceiling"] is None else len(task["ceiling"]),
+            "arms": arms,
+            "on_final_reward": on_final,
+            "labels": labels,
+        }
+    return {"reference": reference, "target_share": TARGET_SHARE, "tasks": tasks}
 
 
 def interval_text(values: list[float]) -> str:
     return "[" + ", ".join("∞" if v == math.inf else f"{v:.2f}" if v < 10 else f"{v:.0f}" for v in values) + "]"
 
 
-def render_ladders(tasks: dict[str, Any], reference: str = "pebble") -> str:
-    lines = ["# How many labels a policy needs", "", "Generated by `python benchmarks/label_response.py ladders ...`."]
-    for name, task in tasks.items():
+def share_text(share: list[float] | None) -> str:
+    return "—" if share is None else f"{share[0]:.2f} {interval_text(share[1:])}"
+
+
+def render_labels_table(data: dict[str, Any]) -> str:
+    """The number users need, task by task: each arm's labels to the target and its ratio to PEBBLE's."""
+    reference = data["reference"]
+    lines = [
+        f"| task | arm | labels to the target [95% CI] | ÷ {reference} [95% CI] | share of SAC at the top budget |",
+        "|---|---|---|---|---|",
+    ]
+    for name, task in data["tasks"].items():
+        for arm, read in task["labels"].items():
+            labels, ratio = read["arm"], read["ratio"]
+            top = task["arms"][arm][-1]
+            lines.append(
+                f"| {name} | {arm} | {labels['labels']:.0f} {interval_text(labels['interval'])} | "
+                f"{ratio['value']:.2f} {interval_text(ratio['interval'])} | {share_text(top['share'])} "
+                f"({top['labels']} labels) |"
+            )
+    if len(lines) == 2:
+        return "No label-response ladder has all its runs in yet.\n"
+    note = (
+        f"\nThe target is {data['target_share']:.0%} of the share of SAC's return that {reference} reaches at the "
+        "ladder's top budget; labels are interpolated on log2(budget) where an arm's mean first reaches it (∞: not "
+        "within the ladder); intervals are 95% percentile bootstraps over seeds.\n"
+    )
+    return "\n".join(lines) + "\n" + note
+
+
+def render_ladders(data: dict[str, Any]) -> str:
+    """Every point of every ladder: seeds, share of SAC's return, last corr(r̂, r); SAC on the final r̂ beside."""
+    lines = []
+    for name, task in data["tasks"].items():
+        ceiling = "not run" if task["ceiling"] is None else f"{task['ceiling']:.1f} ({task['ceiling_seeds']} seeds)"
         lines += [
+            f"### {name}",
             "",
-            f"## {name}",
+            f"SAC on the true reward: {ceiling}; a random policy: {task['floor']:.1f}.",
             "",
-            "| arm | labels | seeds | share of SAC [95% CI] | corr(r̂, r), last |",
-            "|---|---|---|---|---|",
+            "| arm | labels | seeds | share of SAC [95% CI] | corr(r̂, r), last | SAC on the final r̂ [95% CI] |",
+            "|---|---|---|---|---|---|",
         ]
         for arm, points in task["arms"].items():
-            for budget in sorted(points):
-                point = points[budget]
-                share = point.get("share")
-                share_text = "—" if share is None else f"{share[0]:.2f} {interval_text(list(share[1:]))}"
+            finals = {p["labels"]: p for p in task["on_final_reward"].get(f"sac_on_{arm}_reward", [])}
+            for point in points:
                 corr = "—" if point["corr"] is None else f"{point['corr']:.2f}"
-                lines.append(f"| {arm} | {budget} | {len(point['returns'])} | {share_text} | {corr} |")
-        if task["labels"]:
-            lines += ["", f"Labels to the target ({TARGET_SHARE:.0%} of {reference} at the ladder's top budget):", ""]
-            lines += ["| arm | labels [95% CI] | ÷ " + reference + " [95% CI] |", "|---|---|---|"]
-            for arm, read in task["labels"].items():
-                labels, ratio = read["arm"], read["ratio"]
+                final = finals.get(point["labels"])
+                final_text = "—" if final is None else f"{share_text(final['share'])} ({final['seeds']} seeds)"
                 lines.append(
-                    f"| {arm} | {labels['labels']:.0f} {interval_text(labels['interval'])} | "
-                    f"{ratio['value']:.2f} {interval_text(ratio['interval'])} |"
+                    f"| {arm} | {point['labels']} | {point['seeds']} | {share_text(point['share'])} | {corr} | {final_text} |"
                 )
-    return "\n".join(lines) + "\n"
+        lines.append("")
+    return "\n".join(lines)
 
 
-def draw_ladders(tasks: dict[str, Any], path: Path) -> None:
-    """Share of the ceiling against labels (log axis), one panel per task, each arm with its 95% interval."""
+def draw_ladders(data: dict[str, Any], path: Path) -> None:
+    """Share of the ceiling against labels (log axis), one panel per task, each arm with its 95% interval and the
+    target line."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    tasks = data["tasks"]
     figure, axes = plt.subplots(1, max(len(tasks), 1), figsize=(4.5 * max(len(tasks), 1), 3.5), squeeze=False)
     for axis, (name, task) in zip(axes[0], tasks.items(), strict=False):
         for arm, points in task["arms"].items():
-            budgets = [b for b in sorted(points) if "share" in points[b]]
-            shares = np.array([points[b]["share"] for b in budgets]).reshape(-1, 3)
+            shown = [p for p in points if p["share"] is not None]
+            shares = np.array([p["share"] for p in shown]).reshape(-1, 3)
+            budgets = [p["labels"] for p in shown]
             axis.plot(budgets, shares[:, 0], marker="o", label=arm)
             axis.fill_between(budgets, shares[:, 1], shares[:, 2], alpha=0.2)
+        top = task["arms"].get(data["reference"], [{}])[-1].get("share")
+        if top is not None:
+            axis.axhline(data["target_share"] * top[0], color="grey", linestyle="--", linewidth=1, label="target")
         axis.set_xscale("log", base=2)
         axis.set(title=name, xlabel="labels", ylabel="share of SAC's return")
         axis.legend(fontsize="small")
@@ -356,17 +425,13 @@ def main() -> None:
     parser.add_argument("what", choices=["screen", "ladders"])
     parser.add_argument("grids", nargs="*", type=Path, help="ladders: the ladder grid files")
     parser.add_argument("--reference", default="pebble", help="ladders: the arm whose top budget sets the target")
-    parser.add_argument("--print", action="store_true", help="print the page, write no file")
+    parser.add_argument("--print", action="store_true", help="screen: print the page, write no file")
     args = parser.parse_args()
     if args.what == "ladders":
         if not args.grids:
             parser.error("ladders needs the ladder grid files")
-        tasks = read_ladders(args.grids, args.reference)
-        text = render_ladders(tasks, args.reference)
-        if not args.print:
-            LADDER_PAGE.write_text(text)
-            draw_ladders(tasks, LADDER_FIGURE)
-        print(text if args.print else f"wrote {page.relative(LADDER_PAGE)} and {page.relative(LADDER_FIGURE)}")
+        data = read_ladders(args.grids, args.reference)
+        print(render_labels_table(data) + "\n" + render_ladders(data))
         return
     data = read_screen()
     text = render_screen(data)
@@ -375,7 +440,7 @@ def main() -> None:
         return
     SCREEN_PAGE.write_text(text)
     SCREEN_PAGE.with_suffix(".json").write_text(json.dumps(data, indent=1) + "\n")
-    print(f"wrote {page.relative(SCREEN_PAGE)} and its .json")
+    print(f"wrote {relative(SCREEN_PAGE)} and its .json")
 
 
 if __name__ == "__main__":

@@ -18,6 +18,9 @@ better arm's best one and two seeds). Each row states the budget its runs *asked
 - ``docs/_generated/results.md``: the same tables for the documentation site;
 - the summary table of ``README.md``, between ``<!-- results:start -->`` and ``<!-- results:end -->`` (the rows of the
   grid files marked ``summary: true``); nothing outside the markers is touched.
+- the label-response study (grid files marked ``ladder: true``, read by ``benchmarks/label_response.py``): labels to
+  the target and the figure between ``<!-- labels:start -->`` and ``<!-- labels:end -->`` of the README and the
+  results README, and every point of every ladder in ``docs/_generated/label_response.md``.
 
 Each row is compared with PEBBLE at its task's largest budget set (400 queries on DMC, 2000 on Meta-World, where the
 tier's 60k steps ask 1200 of them); a grid file's
@@ -32,6 +35,7 @@ is flagged (``code_differs`` in ``results.json``, a † beside its P on the page
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 from typing import Any
@@ -39,6 +43,7 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import grid
+import label_response
 import run
 from results_recount import COMMIT_NOT_HERE, GRIDS, ROOT, SHORT, code_of, collect, recount, relative, runs_of, uncounted_runs
 from results_render import (
@@ -106,6 +111,11 @@ CLAIMS_START, CLAIMS_END = "<!-- claims:start -->", "<!-- claims:end -->"
 CLAIM_PAGES = [README, ROOT / "benchmarks" / "results" / "README.md"]
 #: the checks' table goes between these markers, in each of :data:`CLAIM_PAGES` that has them
 CHECKS_START, CHECKS_END = "<!-- checks:start -->", "<!-- checks:end -->"
+#: the label-response study's labels-to-target table (and, on the results README, every point of its ladders) goes
+#: between these markers, in each of :data:`CLAIM_PAGES` that has them; its figure is :data:`LABELS_FIGURE`
+LABELS_START, LABELS_END = "<!-- labels:start -->", "<!-- labels:end -->"
+LABELS_PAGE = ROOT / "docs" / "_generated" / "label_response.md"
+LABELS_FIGURE = ROOT / "docs" / "_generated" / "label_response.png"
 
 
 def replace_block(text: str, block: str, where: str, start: str = START, end: str = END) -> str:
@@ -118,6 +128,14 @@ def replace_block(text: str, block: str, where: str, start: str = START, end: st
     return f"{head}{start}\n{block}{end}{tail}"
 
 
+def labels_block(ladders: dict[str, Any], folder: Path) -> str:
+    """The labels-to-target table and, once a ladder is in, the figure, linked from a page in ``folder``."""
+    if not ladders["tasks"]:
+        return "No label-response ladder has all its runs in yet.\n"
+    figure = os.path.relpath(LABELS_FIGURE, folder)
+    return label_response.render_labels_table(ladders) + f"\n![Share of SAC's return against labels]({figure})\n"
+
+
 def write_all(data: dict[str, Any], readme: Path = README, claim_pages: list[Path] | None = None) -> None:
     """The page, the documentation's page, the README's summary, and the claims' and the checks' tables in each of
     ``claim_pages`` (default :data:`CLAIM_PAGES`) that has their markers."""
@@ -125,12 +143,16 @@ def write_all(data: dict[str, Any], readme: Path = README, claim_pages: list[Pat
     DOCS_PAGE.parent.mkdir(parents=True, exist_ok=True)
     DOCS_PAGE.write_text(render_docs(data))
     readme.write_text(replace_block(readme.read_text(), render_summary(data), relative(readme)))
+    ladders = data.get("label_response") or {"tasks": {}}
+    if ladders["tasks"]:
+        label_response.draw_ladders(ladders, LABELS_FIGURE)
+    LABELS_PAGE.write_text(labels_block(ladders, LABELS_PAGE.parent) + "\n" + label_response.render_ladders(ladders))
     blocks = [
         (CLAIMS_START, CLAIMS_END, render_claims(data) or "No grid file states a claim.\n"),
         (CHECKS_START, CHECKS_END, render_checks(data) or "No grid file states a check.\n"),
     ]
     for path in CLAIM_PAGES if claim_pages is None else claim_pages:
-        for start, end, table in blocks:
+        for start, end, table in [*blocks, (LABELS_START, LABELS_END, labels_block(ladders, path.parent))]:
             text = path.read_text()
             if start in text or end in text:
                 path.write_text(replace_block(text, table, relative(path), start, end))
@@ -164,6 +186,7 @@ def main() -> None:
         files = args.grids or sorted(GRIDS.glob("*.yml"))
         summary_first = sorted(files, key=lambda path: not grid.load_grid(path).get("summary"))
         data = recount(summary_first)
+        data["label_response"] = label_response.read_ladders(label_response.ladder_grids(files))
         if args.print:
             print(render_tables(data) + claims_section(data, level=2) + checks_section(data, level=2))
             return

@@ -99,17 +99,27 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
             write_ladder_run(out, "pride", seed, budget, b + 5 * seed)
     grid = tmp_path / "ladder.yml"
     grid.write_text(
-        f"out: {out}\nruns:\n  - {{configurations: [pebble, pride], tasks: [walker-walk], seeds: 0-3, feedback: {LADDER}}}\n"
+        f"out: {out}\nladder: true\nruns:\n"
+        f"  - {{configurations: [pebble, pride], tasks: [walker-walk], seeds: 0-3, feedback: {LADDER}}}\n"
         "  - {configurations: [sac], tasks: [walker-walk], seeds: 0-3}\n"
     )
+    assert study.ladder_grids([grid, tmp_path / "other.yml"][:1]) == [grid]
     monkeypatch.setattr(study, "floor_of", lambda task: 0.0)
-    tasks = study.read_ladders([grid])
-    walker = tasks["walker-walk"]
-    assert walker["ceiling"] == pytest.approx(1001.5)
-    assert walker["arms"]["pebble"][8]["share"][0] == pytest.approx((100 + 7.5) / 1001.5)
+    data = json.loads(json.dumps(study.read_ladders([grid])))  # as results.json keeps it
+    walker = data["tasks"]["walker-walk"]
+    assert walker["ceiling"] == pytest.approx(1001.5) and walker["ceiling_seeds"] == 4
+    first = walker["arms"]["pebble"][0]
+    assert (first["labels"], first["seeds"], first["corr"]) == (8, 4, None)
+    share, low, high = first["share"]
+    assert share == pytest.approx((100 + 7.5) / 1001.5, abs=1e-4) and low < share < high
     assert walker["labels"]["pride"]["ratio"]["value"] == pytest.approx(0.5, abs=0.1)
     assert walker["labels"]["pebble"]["ratio"]["value"] == pytest.approx(1.0)
-    text = study.render_ladders(tasks)
-    assert "## walker-walk" in text and "| pride | 8 | 4 |" in text and "÷ pebble" in text
-    study.draw_ladders(tasks, tmp_path / "figure.png")
+    table = study.render_labels_table(data)
+    assert "| walker-walk | pride |" in table and "÷ pebble" in table
+    assert "| pride | 8 | 4 |" in study.render_ladders(data)
+    study.draw_ladders(data, tmp_path / "figure.png")
     assert (tmp_path / "figure.png").stat().st_size > 0
+    page = load_script("results_page")
+    block = page.labels_block(data, page.ROOT / "benchmarks" / "results")
+    assert "(../../docs/_generated/label_response.png)" in block  # the figure, linked from the results README
+    assert page.labels_block({"tasks": {}}, page.ROOT).startswith("No label-response ladder")
