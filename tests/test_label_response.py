@@ -123,3 +123,32 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     block = page.labels_block(data, page.ROOT / "benchmarks" / "results")
     assert "(../../docs/_generated/label_response.png)" in block  # the figure, linked from the results README
     assert page.labels_block({"tasks": {}}, page.ROOT).startswith("No label-response ladder")
+
+
+def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_says_so(study):
+    def entry(gap: float, steps: int) -> dict:
+        qualifies = gap <= study.PLATEAU_GAP
+        minutes = {"median": 10.0, "max": 12.0}
+        return {
+            "seeds": 3,
+            "planned": 3,
+            "steps": steps,
+            "first": 0.0,
+            "best": 1.0,
+            "last_third": 1 - gap,
+            "plateau_gap": gap,
+            "minutes": minutes,
+            "qualifies": qualifies,
+            "dm_control": True,
+        }
+
+    first = {"cartpole-swingup": entry(0.08, 50000), "reacher-easy": entry(0.4, 50000), "point_mass-easy": entry(0.0, 50000)}
+    data = {"tasks": first, "selection": study.select(first)}
+    assert "reacher-easy are screened again at 100k steps" in study.render_screen(data)
+    assert "cartpole-swingup, reacher-easy" in study.render_screen(data)
+    again = {**first, "cartpole-swingup": {**entry(0.02, 100000), "earlier": [first["cartpole-swingup"]]}}
+    data = {"tasks": again, "selection": study.select(again)}
+    text = study.render_screen(data)
+    assert "| cartpole-swingup | 3 of 3 | 50000 |" in text and "| cartpole-swingup | 3 of 3 | 100000 |" in text
+    assert set(data["selection"]["studied"]) == {"point_mass-easy", "cartpole-swingup"}
+    assert "reacher-easy are screened again" in text
