@@ -4,6 +4,7 @@ Wall time of PEBBLE and PRIDE against plain SB3 SAC on the true reward, identica
     python benchmarks/speed.py --env sb3_pride/walker-walk-v0 --repeats 2
     python benchmarks/speed.py --algos pebble pride --variant rows_on_top --timesteps 25000
     python benchmarks/speed.py --algos pebble pride --variant wide generator_kwargs.width=512 --timesteps 25000
+    python benchmarks/speed.py --tier label-response --env Pendulum-v1 --as-tier --algos pebble pride --repeats 3
     python benchmarks/speed.py --algos pebble --variant blocking_paced seconds_per_answer=0.5 \
         --variant asynchronous_paced seconds_per_answer=0.5 --timesteps 12000 --repeats 2
 
@@ -43,14 +44,14 @@ from sb3_pride.zoo import hyperparams_dir, model_kwargs
 OVERRIDES = dict(unsupervised_steps=2000, max_feedback=200)
 
 
-def tier_kwargs(algo: str, env_id: str, as_tier: bool = False) -> dict:
-    _, kwargs = model_kwargs(hyperparams_dir() / "cpu" / f"{algo}.yml", env_id)
+def tier_kwargs(algo: str, env_id: str, as_tier: bool = False, tier: str = "cpu") -> dict:
+    _, kwargs = model_kwargs(hyperparams_dir() / tier / f"{algo}.yml", env_id)
     return {**kwargs, **(OVERRIDES if algo != "sac" and not as_tier else {})}
 
 
-def tier_timesteps(env_id: str) -> int:
-    """The CPU tier's run length for this env (its YAML entry's n_timesteps)."""
-    n_timesteps, _ = model_kwargs(hyperparams_dir() / "cpu" / "pebble.yml", env_id)
+def tier_timesteps(env_id: str, tier: str = "cpu") -> int:
+    """The tier's run length for this env (its YAML entry's n_timesteps)."""
+    n_timesteps, _ = model_kwargs(hyperparams_dir() / tier / "pebble.yml", env_id)
     return n_timesteps
 
 
@@ -106,12 +107,12 @@ def parse_variant(words: list[str], variants: dict[str, dict[str, Any]] | None =
     return f"{algo}[{label}]", algo, overrides
 
 
-def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False, **overrides: Any) -> dict:
+def run(algo: str, env_id: str, timesteps: int, seed: int, as_tier: bool = False, tier: str = "cpu", **overrides: Any) -> dict:
     th.set_num_threads(1)
     TIMES.clear()
     cls = {"sac": SAC, "pebble": sb3_pride.PEBBLE, "pride": sb3_pride.PRIDE}[algo]
     pace = overrides.pop("seconds_per_answer", None)
-    kwargs = merge(tier_kwargs(algo, env_id, as_tier), overrides)
+    kwargs = merge(tier_kwargs(algo, env_id, as_tier, tier), overrides)
     if pace:  # the teacher answers at a person's pace: PacedTeacher
         teacher = make_teacher(kwargs["teacher"], seed=seed)
         if isinstance(teacher, InteractiveTeacher):
@@ -145,6 +146,9 @@ def main() -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="seed of the first repeat (repeat i uses seed + i)")
     parser.add_argument(
+        "--tier", default="cpu", help="the settings' folder under hyperparams/ (default: cpu), e.g. label-response"
+    )
+    parser.add_argument(
         "--variant",
         nargs="+",
         action="append",
@@ -160,7 +164,7 @@ def main() -> None:
     if not algos:
         raise SystemExit("nothing to time: give --algos or a --variant")
     if args.timesteps is None:
-        args.timesteps = tier_timesteps(args.env) if args.as_tier else 25_000
+        args.timesteps = tier_timesteps(args.env, args.tier) if args.as_tier else 25_000
 
     version, started = provenance(), utc_now()  # the code timed, as it was when the timing began
     results: dict[str, list[dict]] = defaultdict(list)
@@ -168,20 +172,24 @@ def main() -> None:
         for algo in algos:  # a variant's label runs its algorithm with its settings changed
             seed = args.seed + repeat
             kind, changed = variants.get(algo, (algo, {}))
-            results[algo].append(run(kind, args.env, args.timesteps, seed, args.as_tier, **changed))
+            results[algo].append(run(kind, args.env, args.timesteps, seed, args.as_tier, args.tier, **changed))
             print(f"repeat {repeat} {algo}: {results[algo][-1]['seconds']:.1f} s", flush=True)
     medians = {
         algo: {key: float(np.median([r.get(key, 0.0) for r in runs])) for key in runs[0]} for algo, runs in results.items()
     }
-    kwargs = {algo: tier_kwargs(algo, args.env, args.as_tier) for algo in args.algos}
+    kwargs = {algo: tier_kwargs(algo, args.env, args.as_tier, args.tier) for algo in args.algos}
     kwargs.update(
-        {name: merge(tier_kwargs(algo, args.env, args.as_tier), changed) for name, (algo, changed) in variants.items()}
+        {
+            name: merge(tier_kwargs(algo, args.env, args.as_tier, args.tier), changed)
+            for name, (algo, changed) in variants.items()
+        }
     )
     report = {
         "env": args.env,
         "timesteps": args.timesteps,
         "repeats": args.repeats,
         "as_tier": args.as_tier,
+        "tier": args.tier,
         "seed": args.seed,
         "version": version,
         "started": started,

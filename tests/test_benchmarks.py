@@ -670,6 +670,9 @@ def test_speed_takes_a_variant_label(monkeypatch):
     assert speed.parse_variant(["wide", "generator_kwargs.width=512"])[2] == {"generator_kwargs": {"width": 512}}
     with pytest.raises(SystemExit, match="--variant nothing: not a variant"):
         speed.parse_variant(["nothing"])
+    # another tier's settings, as the label-response study times them
+    assert speed.tier_timesteps("Pendulum-v1", "label-response") == 20_000
+    assert speed.tier_kwargs("pride", "Pendulum-v1", as_tier=True, tier="label-response")["synthetic_start"] == 4000
 
 
 def test_the_generated_results_files_are_in_sync_with_results_json(page):
