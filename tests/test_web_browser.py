@@ -140,9 +140,17 @@ def test_two_annotators_label_one_session_together_in_headless_chromium(tiny_kwa
     assert by_annotator["ana"][0] == 1 and by_annotator["ben"][:2] == [0.5, "skip"]  # ana's undo took back her "left"
 
 
+def draw_lamp(brightness: float) -> np.ndarray:
+    """A 48 x 64 picture of the lamp: a lit square that grows with its brightness."""
+    frame = np.zeros((48, 64, 3), dtype=np.uint8)
+    half = 4 + int(18 * brightness)
+    frame[24 - half : 24 + half, 32 - half : 32 + half] = (255, 220, int(255 * brightness))
+    return frame
+
+
 class Lamp(gym.Env):
-    """A lamp whose brightness the action turns up or down (reward: brightness), drawn as a 48 x 64 picture whose lit
-    square grows with it; with the render-state protocol (its brightness), so a teacher re-draws its frames exactly."""
+    """A lamp whose brightness the action turns up or down (reward: brightness), drawn by ``draw_lamp``: a custom env
+    that only renders, as most do, so a teacher records its frames as it plays."""
 
     metadata: ClassVar[dict] = {"render_modes": ["rgb_array"], "render_fps": 20}
 
@@ -162,17 +170,18 @@ class Lamp(gym.Env):
         self.steps += 1
         return np.array([self.brightness], np.float32), self.brightness, False, self.steps >= 40, {}
 
+    def render(self):
+        return draw_lamp(self.brightness)
+
+
+class StatefulLamp(Lamp):
+    """The lamp with the render-state protocol (its brightness), so a teacher re-draws its frames exactly."""
+
     def get_render_state(self) -> np.ndarray:
         return np.array([self.brightness])
 
     def render_from_state(self, state: np.ndarray) -> np.ndarray:
-        frame = np.zeros((48, 64, 3), dtype=np.uint8)
-        half = 4 + int(18 * state[0])
-        frame[24 - half : 24 + half, 32 - half : 32 + half] = (255, 220, int(255 * state[0]))
-        return frame
-
-    def render(self):
-        return self.render_from_state(self.get_render_state())
+        return draw_lamp(float(state[0]))
 
 
 @pytest.mark.slow
@@ -181,9 +190,10 @@ class Lamp(gym.Env):
     ("make_env", "shown_from", "size"),
     [
         (lambda: "Pendulum-v1", "recorded_frames", (500, 500)),  # made by SB3 with render_mode="rgb_array"
-        (lambda: Lamp(), "render_states", (64, 48)),
+        (lambda: StatefulLamp(), "render_states", (64, 48)),
+        (lambda: Lamp(), "recorded_frames", (64, 48)),
     ],
-    ids=["Pendulum-v1", "custom-env"],
+    ids=["Pendulum-v1", "custom-env-render-states", "custom-env-recorded-frames"],
 )
 def test_two_annotators_label_an_env_that_is_not_mujoco_while_the_agent_trains(
     make_env, shown_from, size, tiny_kwargs, tmp_path
