@@ -4,7 +4,7 @@ How many labels does a policy need? The label-response study's reading of its ru
     python benchmarks/label_response.py screen            # which candidate tasks qualify, by the screen's rule
     python benchmarks/label_response.py ladders GRID...   # print ladders' tables (e.g. a grid still in pending/)
 
-``screen`` reads the SAC runs of the screen's grid files (pending until their runs are in) and applies the rule their
+``screen`` reads the SAC runs of the screen's grid files (in ``pending/`` until their runs are in) and applies the rule their
 descriptions state (written before their runs): per task, the mean curve over seeds; its plateau gap, (best - mean of
 the last third of the evaluations) / (best - first evaluation), must be at most ``PLATEAU_GAP``, and the median of
 its runs' wall times must be at most ``MAX_MINUTES`` (runs on a shared machine also time their neighbours); of the
@@ -37,7 +37,7 @@ import run
 from grid import load_grid
 from results_recount import GRIDS, ROOT, collect, last_correlations, relative, runs_of
 
-SCREEN = GRIDS / "pending" / "label-response-screen.yml"
+SCREEN = GRIDS / "label-response-screen.yml"
 #: the second look, at 100k steps, at the candidates the first one did not qualify (the rule's part 3)
 RESCREEN = GRIDS / "pending" / "label-response-rescreen.yml"
 SCREEN_PAGE = ROOT / "benchmarks" / "results" / "label_response_screen.md"
@@ -162,7 +162,7 @@ def render_screen(data: dict[str, Any]) -> str:
         lines.append(
             f"Studied: {', '.join(selection['studied']) or 'none'}; held out: {', '.join(selection['held_out']) or 'none'}."
         )
-    failed = [task for task, entry in data["tasks"].items() if not entry["qualifies"] and "earlier" not in entry]
+    failed = [task for task, entry in data["tasks"].items() if not entry.get("qualifies") and "earlier" not in entry]
     if selection["studied"] is not None and len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT:
         lines.append(
             f"Fewer than {STUDIED + HELD_OUT} tasks qualify: by the rule's part (3), "
