@@ -13,7 +13,7 @@ qualifying tasks the three cheapest are studied (at least one from dm_control) a
 
 The ladders (grid files with ``ladder: true``) are read by ``benchmarks/results_page.py`` through
 :func:`read_ladders` into ``results.json``, the README, the results README, the docs' results page and
-``figures/label_response.png``: per task and arm, the share of SAC's return at each budget, (R - R_random) /
+``docs/_generated/label_response.png``: per task and arm, the share of SAC's return at each budget, (R - R_random) /
 (R_SAC - R_random) with ``R_random`` a uniformly random policy's return, with a 95% bootstrap interval over seeds
 and the mean last corr(r̂, r); SAC from scratch on the final r̂ where a grid ran it; and the labels to the target
 (:func:`labels_to_target`, :func:`bootstrap_labels`): the target is ``TARGET_SHARE`` of what PEBBLE reaches at the
@@ -90,7 +90,8 @@ def read_look(grid_file: Path, runs_folder: Path | None = None) -> dict[str, dic
     for row in rows.values():
         runs = runs_of(row)
         if not runs:
-            tasks[row["task"]] = {"seeds": 0, "planned": len(row["specs"])}
+            planned = run.run_kwargs(row["specs"][0])[0]
+            tasks[row["task"]] = {"seeds": 0, "planned": len(row["specs"]), "steps": planned}
             continue
         length = min(len(found["curve"]) for found in runs)
         curve = np.mean([found["curve"]["true_return"][:length] for found in runs], axis=0)
@@ -106,6 +107,8 @@ def read_look(grid_file: Path, runs_folder: Path | None = None) -> dict[str, dic
             "plateau_gap": round(gap, 4),
             "minutes": {"median": round(float(np.median(minutes)), 1), "max": round(float(np.max(minutes)), 1)},
             "qualifies": bool(gap <= PLATEAU_GAP and np.median(minutes) <= MAX_MINUTES),
+            # the rule as first written read the slowest run: a task that qualifies only by the median says so
+            "by_median_only": bool(gap <= PLATEAU_GAP and np.median(minutes) <= MAX_MINUTES < np.max(minutes)),
             "dm_control": is_dm_control(row["task"]),
         }
     return tasks
@@ -127,7 +130,8 @@ def select(tasks: dict[str, dict]) -> dict[str, Any]:
         if dmc:
             studied = studied[: STUDIED - 1] + dmc[:1]
     rest = [task for task in ranked if task not in studied]
-    return {"studied": studied, "held_out": rest[:HELD_OUT], "waiting_for": []}
+    dm_control = any(tasks[task]["dm_control"] for task in studied)
+    return {"studied": studied, "held_out": rest[:HELD_OUT], "waiting_for": [], "dm_control_missing": not dm_control}
 
 
 def render_screen(data: dict[str, Any]) -> str:
@@ -145,13 +149,14 @@ def render_screen(data: dict[str, Any]) -> str:
     looks = [(task, look) for task, entry in data["tasks"].items() for look in [*entry.get("earlier", []), entry]]
     for task, entry in looks:
         if not entry["seeds"]:
-            lines.append(f"| {task} | 0 of {entry['planned']} | — | — | — | — | — | — | not run |")
+            lines.append(f"| {task} | 0 of {entry['planned']} | {entry['steps']} | — | — | — | — | — | not run |")
             continue
         minutes = entry["minutes"]
         lines.append(
             f"| {task} | {entry['seeds']} of {entry['planned']} | {entry['steps']} | {entry['first']:.1f} | "
             f"{entry['best']:.1f} | {entry['last_third']:.1f} | {entry['plateau_gap']:.3f} | "
             f"{minutes['median']:.1f} / {minutes['max']:.1f} | {'yes' if entry['qualifies'] else 'no'}"
+            f"{' (by the median run only)' if entry.get('by_median_only') else ''}"
             f"{' so far' if entry['seeds'] < entry['planned'] else ''} |"
         )
     selection = data["selection"]
@@ -163,11 +168,13 @@ def render_screen(data: dict[str, Any]) -> str:
             f"Studied: {', '.join(selection['studied']) or 'none'}; held out: {', '.join(selection['held_out']) or 'none'}."
         )
     failed = [task for task, entry in data["tasks"].items() if not entry.get("qualifies") and "earlier" not in entry]
+    if selection["studied"] is not None and selection.get("dm_control_missing"):
+        lines.append("No dm_control task qualifies: the selection holds none, where the rule asks for one.")
     if selection["studied"] is not None and len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT:
         lines.append(
             f"Fewer than {STUDIED + HELD_OUT} tasks qualify: by the rule's part (3), "
             + (
-                f"{', '.join(failed)} are screened again at 100k steps before the selection is final."
+                f"{', '.join(failed)}: screened again at 100k steps before the selection is final."
                 if failed
                 else "every task was screened again at 100k steps; the selection above is final."
             )
@@ -215,8 +222,8 @@ def bootstrap_labels(
     Labels to the target for PEBBLE (``reference``) and an ``arm``, and the ratio arm ÷ PEBBLE, each with a
     percentile bootstrap interval: every resample draws each budget's seeds of both arms with replacement, sets the
     target from the resampled PEBBLE at the top budget (``floor + TARGET_SHARE × (its return - floor)``, ``floor``
-    the return of a random policy) and reads both arms on it. A ratio whose two arms both miss the target is left
-    out of its interval, and counted (``undefined``).
+    the return of a random policy) and reads both arms on it. A ratio whose PEBBLE misses the target (arm ÷ ∞) is
+    left out of its interval, and counted (``undefined``), as the point ratio is then undefined.
 
     :param reference: PEBBLE's returns, one array of seeds per budget
     :param arm: the other arm's, per budget
@@ -236,7 +243,7 @@ def bootstrap_labels(
         [labels_to_target(ladder, a, target_of(r[-1])) for a, r in zip(draws_arm, draws_reference, strict=True)]
     )
     with np.errstate(invalid="ignore", divide="ignore"):
-        ratios = labels_arm / labels_reference
+        ratios = np.where(np.isinf(labels_reference), np.nan, labels_arm / labels_reference)  # as the point ratio
     defined = ratios[~np.isnan(ratios)]
     tails = [(1 - confidence) / 2, 1 - (1 - confidence) / 2]
 
@@ -257,7 +264,6 @@ def bootstrap_labels(
 
 
 FLOORS = ROOT / "benchmarks" / "results" / "label_response_floors.json"
-FIGURE = ROOT / "benchmarks" / "results" / "figures" / "label_response.png"
 
 
 def random_return(task: str, episodes: int = 10, seed: int = 0) -> float:
@@ -303,17 +309,22 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str,
     """
     Per task (JSON-ready, for ``results.json``): SAC's ceiling and a random policy's floor; each arm's points, budget
     by budget (seeds, share of the ceiling with its 95% interval, mean last corr(r̂, r)); SAC from scratch on the
-    final r̂ of the runs of a budget where the grid ran it; and each arm's labels to the target beside PEBBLE's.
+    final r̂ of the runs of a budget where the grid ran it (a variant named ``sac_on_<arm>_reward``); each arm's labels
+    to the target beside PEBBLE's; and how many of the task's planned runs are in (``runs``: a ladder is read whole).
     """
     rows, _, _ = collect(grid_files)
     found: dict[str, dict[str, Any]] = {}
     for row in rows.values():
+        task = found.setdefault(row["task"], {"arms": {}, "on_final_reward": {}, "ceiling": None, "runs": [0, 0]})
         runs = runs_of(row)
+        task["runs"] = [task["runs"][0] + len(runs), task["runs"][1] + len(row["specs"])]
         if not runs:
             continue
-        task = found.setdefault(row["task"], {"arms": {}, "on_final_reward": {}, "ceiling": None})
         returns = plot.primary_returns(runs)
-        if row["configuration"] == "sac":
+        learns_from = row["specs"][0].get("learned_reward")
+        if row["algo"] == "sac" and not learns_from:  # SAC on the true reward: the ceiling
+            if task["ceiling"] is not None:
+                raise SystemExit(f"{row['task']}: two SAC rows on the true reward in the ladders; keep one ceiling")
             task["ceiling"] = returns
         elif row["algo"] == "sac":  # SAC learning from the r̂ a ladder run saved
             task["on_final_reward"].setdefault(row["configuration"], {})[int(row["feedback"])] = returns
@@ -359,6 +370,7 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str,
             "floor": floor,
             "ceiling": ceiling,
             "ceiling_seeds": 0 if task["ceiling"] is None else len(task["ceiling"]),
+            "runs": task["runs"],
             "arms": arms,
             "on_final_reward": on_final,
             "labels": labels,
@@ -366,8 +378,13 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str,
     return {"reference": reference, "target_share": TARGET_SHARE, "tasks": tasks}
 
 
+def number_text(value: float) -> str:
+    """A count of labels or a ratio as the tables write it: ∞ where the ladder does not reach, — where undefined."""
+    return "∞" if value == math.inf else "—" if math.isnan(value) else f"{value:.2f}" if value < 10 else f"{value:.0f}"
+
+
 def interval_text(values: list[float]) -> str:
-    return "[" + ", ".join("∞" if v == math.inf else f"{v:.2f}" if v < 10 else f"{v:.0f}" for v in values) + "]"
+    return "[" + ", ".join(number_text(v) for v in values) + "]"
 
 
 def share_text(share: list[float] | None) -> str:
@@ -382,12 +399,14 @@ def render_labels_table(data: dict[str, Any]) -> str:
         "|---|---|---|---|---|",
     ]
     for name, task in data["tasks"].items():
+        done, planned = task["runs"]
+        shown = name if done == planned else f"{name} ({done} of {planned} runs in: not a reading yet)"
         for arm, read in task["labels"].items():
             labels, ratio = read["arm"], read["ratio"]
             top = task["arms"][arm][-1]
             lines.append(
-                f"| {name} | {arm} | {labels['labels']:.0f} {interval_text(labels['interval'])} | "
-                f"{ratio['value']:.2f} {interval_text(ratio['interval'])} | {share_text(top['share'])} "
+                f"| {shown} | {arm} | {number_text(labels['labels'])} {interval_text(labels['interval'])} | "
+                f"{number_text(ratio['value'])} {interval_text(ratio['interval'])} | {share_text(top['share'])} "
                 f"({top['labels']} labels) |"
             )
     if len(lines) == 2:

@@ -111,8 +111,8 @@ CLAIMS_START, CLAIMS_END = "<!-- claims:start -->", "<!-- claims:end -->"
 CLAIM_PAGES = [README, ROOT / "benchmarks" / "results" / "README.md"]
 #: the checks' table goes between these markers, in each of :data:`CLAIM_PAGES` that has them
 CHECKS_START, CHECKS_END = "<!-- checks:start -->", "<!-- checks:end -->"
-#: the label-response study's labels-to-target table (and, on the results README, every point of its ladders) goes
-#: between these markers, in each of :data:`CLAIM_PAGES` that has them; its figure is :data:`LABELS_FIGURE`
+#: the label-response study's labels-to-target table and figure (:data:`LABELS_FIGURE`) go between these markers, in
+#: each of :data:`CLAIM_PAGES` that has them; every point of its ladders goes into :data:`LABELS_PAGE`
 LABELS_START, LABELS_END = "<!-- labels:start -->", "<!-- labels:end -->"
 LABELS_PAGE = ROOT / "docs" / "_generated" / "label_response.md"
 LABELS_FIGURE = ROOT / "docs" / "_generated" / "label_response.png"

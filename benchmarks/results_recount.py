@@ -49,11 +49,15 @@ def relative(path: Path) -> str:
 
 
 def row_key(spec: dict[str, Any]) -> tuple:
-    """Runs that differ only by seed form one row: task, configuration, budget (not SAC's) and u (PRIDE's only)."""
+    """
+    Runs that differ only by seed form one row: task, configuration, budget (not SAC's, unless it learns from the r̂
+    a run of that budget saved) and u (PRIDE's only).
+    """
+    budget_counts = spec["algo"] != "sac" or "{feedback}" in (spec.get("learned_reward") or "")
     return (
         spec["task"],
         spec["configuration"],
-        None if spec["algo"] == "sac" else spec["feedback"],
+        spec["feedback"] if budget_counts else None,
         spec["ratio"] if spec["algo"] == "pride" else None,
     )
 
@@ -87,7 +91,8 @@ def collect(grid_files: list[Path], runs_folder: Path | None = None) -> tuple[di
                     "task": spec["task"],
                     "configuration": spec["configuration"],
                     "algo": spec["algo"],
-                    "name": configuration_name(spec["configuration"], spec["algo"], variants),
+                    "name": configuration_name(spec["configuration"], spec["algo"], variants)
+                    + ("" if spec_grid.get("tier", "cpu") == "cpu" else f" ({spec_grid['tier']} tier)"),
                     "description": variants[spec["configuration"]]["description"] if spec["variant"] else "",
                     "feedback": key[2],
                     "ratio": key[3],

@@ -293,6 +293,18 @@ def grid(args: argparse.Namespace) -> list[dict[str, Any]]:
     return specs
 
 
+def run_kwargs(spec: dict[str, Any]) -> tuple[int, dict[str, Any]]:
+    """``(n_timesteps, constructor kwargs)`` of a run: its YAML entry, the grid's budget, sessions and u, its overrides."""
+    n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
+    if spec["algo"] != "sac":
+        kwargs["max_feedback"] = spec["feedback"]
+        if spec.get("sessions"):  # one schedule shape at every budget of a ladder: the budget in this many sessions
+            kwargs["queries_per_session"] = -(-spec["feedback"] // spec["sessions"])
+    if spec["algo"] == "pride":
+        kwargs["synthetic_ratio"] = spec["ratio"]
+    return spec["timesteps"] or n_timesteps, merge(kwargs, spec.get("overrides") or {})
+
+
 def worker(spec: dict[str, Any], folder: Path) -> None:
     """One run, in this process."""
     import numpy as np
@@ -304,15 +316,7 @@ def worker(spec: dict[str, Any], folder: Path) -> None:
     started = utc_now()
     th.set_num_threads(1)
     spec = run_templates(spec, folder.parent)
-    n_timesteps, kwargs = yaml_entry(spec["tier"], spec["algo"], spec["task"])
-    if spec["algo"] != "sac":
-        kwargs["max_feedback"] = spec["feedback"]
-        if spec.get("sessions"):  # one schedule shape at every budget of a ladder: the budget in this many sessions
-            kwargs["queries_per_session"] = -(-spec["feedback"] // spec["sessions"])
-    if spec["algo"] == "pride":
-        kwargs["synthetic_ratio"] = spec["ratio"]
-    kwargs = merge(kwargs, spec.get("overrides") or {})
-    n_timesteps = spec["timesteps"] or n_timesteps
+    n_timesteps, kwargs = run_kwargs(spec)
     algo = algorithm_class(spec["algo"])
     env = make_vec_env(env_id(spec["task"]), n_envs=1, seed=spec["seed"])
     if spec.get("learned_reward"):  # the agent learns from a saved r̂; the evaluations still read the true return

@@ -87,7 +87,7 @@ TIMES: dict[str, float] = defaultdict(float)
 def parse_variant(words: list[str], variants: dict[str, dict[str, Any]] | None = None) -> tuple[str, str, dict[str, Any]]:
     """
     ``--variant LABEL [KEY=VALUE ...]`` into ``("algo[LABEL]", algo, overrides)``: a label of
-    ``hyperparams/cpu/variants.yml`` brings its algorithm and overrides (KEY=VALUE pairs change them further); any other
+    the tier's ``variants.yml`` (default: ``hyperparams/cpu/``) brings its algorithm and overrides (KEY=VALUE pairs change them further); any other
     label is PRIDE with the KEY=VALUE pairs (values read as YAML, dotted keys into nested dicts).
     """
     variants = load_variants("cpu") if variants is None else variants
@@ -103,7 +103,7 @@ def parse_variant(words: list[str], variants: dict[str, dict[str, Any]] | None =
         algo, overrides = "pride", parse_overrides(pairs)
     else:
         known = ", ".join(sorted(variants))
-        raise SystemExit(f"--variant {label}: not a variant of hyperparams/cpu/variants.yml ({known}); give key=value pairs")
+        raise SystemExit(f"--variant {label}: not a variant of the tier's variants.yml ({known}); give key=value pairs")
     return f"{algo}[{label}]", algo, overrides
 
 
@@ -154,12 +154,15 @@ def main() -> None:
         action="append",
         default=[],
         metavar="LABEL [KEY=VALUE]",
-        help="also run a variant of hyperparams/cpu/variants.yml, or PRIDE with these settings changed, reported as "
+        help="also run a variant of the tier's variants.yml, or PRIDE with these settings changed, reported as "
         "algo[LABEL] (repeatable)",
     )
     parser.add_argument("--out", default=None, help="write the results as JSON here")
     args = parser.parse_args()
-    variants = {name: (algo, overrides) for name, algo, overrides in map(parse_variant, args.variant)}
+    tier_variants = load_variants(args.tier)
+    variants = {
+        name: (algo, overrides) for name, algo, overrides in (parse_variant(words, tier_variants) for words in args.variant)
+    }
     algos = args.algos + list(variants)
     if not algos:
         raise SystemExit("nothing to time: give --algos or a --variant")

@@ -428,16 +428,10 @@ def test_the_committed_runs_were_made_with_the_settings_their_grid_runs_today(gr
     for path in sorted((ROOT / "benchmarks" / "grids").glob("*.yml")):
         spec_grid = grid.load_grid(path)
         for spec in grid.expand(spec_grid):
-            _, kwargs = grid.run.yaml_entry(spec["tier"], spec["algo"], spec["task"])
-            kwargs = grid.run.merge(kwargs, spec["overrides"])
-            if spec["algo"] != "sac":
-                kwargs["max_feedback"] = spec["feedback"]
-            if spec["algo"] == "pride":
-                kwargs["synthetic_ratio"] = spec["ratio"]
             settings = json.loads((grid.out_folder(spec_grid) / grid.run.run_name(spec) / "settings.json").read_text())
             # a path a template named ({out}/...) is compared from benchmarks/results/ on: the checkout it ran in differs
-            filled = grid.run.run_templates({**spec, "overrides": kwargs}, grid.out_folder(spec_grid))
-            kwargs = in_repository(filled["overrides"])
+            _, kwargs = grid.run.run_kwargs(grid.run.run_templates(spec, grid.out_folder(spec_grid)))
+            kwargs = in_repository(kwargs)
             now = what_ran(grid.run.algorithm_defaults(spec["algo"]), kwargs)
             then = what_ran(recorded_defaults(grid.run, settings), in_repository(settings["kwargs"]))
             differ = {k: (now.get(k), then.get(k)) for k in {*now, *then} if now.get(k) != then.get(k)}

@@ -75,12 +75,13 @@ def test_the_screen_selects_the_cheapest_qualifying_tasks_with_one_from_dm_contr
     assert study.select(tasks)["studied"] is None  # no selection before every seed is in
 
 
-def write_ladder_run(out, algo: str, seed: int, budget: int | None, primary: float) -> None:
+def write_ladder_run(out, algo: str, seed: int, budget: int | None, primary: float, tag: str = "") -> None:
     """A finished run as benchmarks/run.py leaves it, whose last three evaluations average ``primary``."""
-    name = f"{algo}_walker-walk_s{seed}" + ("" if budget is None else f"_fb{budget}") + ("_u0.25" if algo == "pride" else "")
+    name = f"{algo}_Pendulum-v1_s{seed}" + ("" if budget is None else f"_fb{budget}") + ("_u0.25" if algo == "pride" else "")
+    name += tag
     folder = out / name
     folder.mkdir(parents=True)
-    settings = {"algo": algo, "task": "walker-walk", "seed": seed, "feedback": budget, "ratio": None, "tag": ""}
+    settings = {"algo": algo, "task": "Pendulum-v1", "seed": seed, "feedback": budget, "ratio": None, "tag": ""}
     (folder / "settings.json").write_text(json.dumps(settings))
     rows = "".join(f"{step},{primary},\n" for step in (5000, 10000, 15000))
     (folder / "curve.csv").write_text("step,true_return,success\n" + rows)
@@ -97,17 +98,23 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
         for budget, a, b in zip(LADDER, pebble, early, strict=True):
             write_ladder_run(out, "pebble", seed, budget, a + 5 * seed)
             write_ladder_run(out, "pride", seed, budget, b + 5 * seed)
+        for budget, value in ((8, 200), (128, 950)):  # SAC from scratch on the final r̂ of PEBBLE's runs at 8 and 128
+            write_ladder_run(out, "sac", seed, None, value, tag=f"_on_pebble_fb{budget}_reward")
     grid = tmp_path / "ladder.yml"
     grid.write_text(
-        f"out: {out}\nladder: true\nruns:\n"
-        f"  - {{configurations: [pebble, pride], tasks: [walker-walk], seeds: 0-3, feedback: {LADDER}}}\n"
-        "  - {configurations: [sac], tasks: [walker-walk], seeds: 0-3}\n"
+        f"tier: label-response\nout: {out}\nladder: true\nruns:\n"
+        f"  - {{configurations: [pebble, pride], tasks: [Pendulum-v1], seeds: 0-3, feedback: {LADDER}}}\n"
+        "  - {configurations: [sac], tasks: [Pendulum-v1], seeds: 0-3}\n"
+        "  - {configurations: [sac_on_pebble_reward], tasks: [Pendulum-v1], seeds: 0-3, feedback: [8, 128]}\n"
     )
     assert study.ladder_grids([grid, tmp_path / "other.yml"][:1]) == [grid]
     monkeypatch.setattr(study, "floor_of", lambda task: 0.0)
     data = json.loads(json.dumps(study.read_ladders([grid])))  # as results.json keeps it
-    walker = data["tasks"]["walker-walk"]
-    assert walker["ceiling"] == pytest.approx(1001.5) and walker["ceiling_seeds"] == 4
+    walker = data["tasks"]["Pendulum-v1"]
+    assert walker["ceiling"] == pytest.approx(1001.5) and walker["ceiling_seeds"] == 4  # r̂'s own SAC runs are not it
+    assert walker["runs"] == [4 * (1 + 2 * len(LADDER) + 2)] * 2
+    on_final = {point["labels"]: point["share"][0] for point in walker["on_final_reward"]["sac_on_pebble_reward"]}
+    assert on_final == {8: pytest.approx(200 / 1001.5, abs=1e-4), 128: pytest.approx(950 / 1001.5, abs=1e-4)}
     first = walker["arms"]["pebble"][0]
     assert (first["labels"], first["seeds"], first["corr"]) == (8, 4, None)
     share, low, high = first["share"]
@@ -115,10 +122,14 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     assert walker["labels"]["pride"]["ratio"]["value"] == pytest.approx(0.5, abs=0.1)
     assert walker["labels"]["pebble"]["ratio"]["value"] == pytest.approx(1.0)
     table = study.render_labels_table(data)
-    assert "| walker-walk | pride |" in table and "÷ pebble" in table
+    assert "| Pendulum-v1 | pride |" in table and "÷ pebble" in table
     assert "| pride | 8 | 4 |" in study.render_ladders(data)
+    assert "| pebble | 128 | 4 | 1.01 [1.00, 1.01] | — | 0.95 [0.95, 0.95] (4 seeds) |" in study.render_ladders(data)
     study.draw_ladders(data, tmp_path / "figure.png")
     assert (tmp_path / "figure.png").stat().st_size > 0
+    (out / "pride_Pendulum-v1_s3_fb128_u0.25" / "result.json").unlink()  # a ladder not all in is not read as one
+    partial = study.render_labels_table(study.read_ladders([grid]))
+    assert "Pendulum-v1 (51 of 52 runs in: not a reading yet)" in partial
     page = load_script("results_page")
     block = page.labels_block(data, page.ROOT / "benchmarks" / "results")
     assert "(../../docs/_generated/label_response.png)" in block  # the figure, linked from the results README
@@ -144,11 +155,11 @@ def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_
 
     first = {"cartpole-swingup": entry(0.08, 50000), "reacher-easy": entry(0.4, 50000), "point_mass-easy": entry(0.0, 50000)}
     data = {"tasks": first, "selection": study.select(first)}
-    assert "reacher-easy are screened again at 100k steps" in study.render_screen(data)
+    assert "reacher-easy: screened again at 100k steps" in study.render_screen(data)
     assert "cartpole-swingup, reacher-easy" in study.render_screen(data)
     again = {**first, "cartpole-swingup": {**entry(0.02, 100000), "earlier": [first["cartpole-swingup"]]}}
     data = {"tasks": again, "selection": study.select(again)}
     text = study.render_screen(data)
     assert "| cartpole-swingup | 3 of 3 | 50000 |" in text and "| cartpole-swingup | 3 of 3 | 100000 |" in text
     assert set(data["selection"]["studied"]) == {"point_mass-easy", "cartpole-swingup"}
-    assert "reacher-easy are screened again" in text
+    assert "reacher-easy: screened again" in text
