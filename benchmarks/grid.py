@@ -20,7 +20,9 @@ A grid file (YAML) holds a few settings and one or more blocks, each a product:
                                        # ladder (queries_per_session = ceil(budget / sessions): PEBBLE's constant
                                        # schedule; PRIDE's front-loaded one asks it in five sessions at any budget)
     ladder: true                       # optional: a label-response ladder, read by benchmarks/label_response.py into
-                                       # the pages' "How many labels" section (SAC: the ceiling; sac_on_*: r̂ alone)
+                                       # the pages' "How many labels" section (SAC: the ceiling; sac_on_*: r̂ alone);
+                                       # or {pebble: pebble_steps30k, ...}: the arms' names where the configurations'
+                                       # labels differ (the arm named pebble sets the target)
     repeats: benchmarks/results/runs  # optional: runs of the same names it re-runs (benchmarks/grids/repeats/), to
                                        # check with benchmarks/same_seed.py that they repeat evaluation by evaluation
     claims:                            # optional: rules written before the runs, read by benchmarks/results_page.py
@@ -145,9 +147,12 @@ def load_grid(path: Path) -> dict[str, Any]:
     sessions = grid.get("sessions")
     if sessions is not None and not (type(sessions) is int and sessions >= 1):
         raise GridError(f"{path}: sessions is a positive integer (the feedback sessions that ask a budget), got {sessions!r}")
-    if grid.get("ladder", False) not in (True, False):
+    ladder = grid.get("ladder", False)
+    names_arms = isinstance(ladder, dict) and all(isinstance(v, str) for v in [*ladder, *ladder.values()])
+    if ladder not in (True, False) and not names_arms:
         raise GridError(
-            f"{path}: ladder is true or false (whether the grid is a label-response ladder), got {grid['ladder']!r}"
+            f"{path}: ladder is true, false, or a mapping of arm names to the configurations that run them "
+            f"(pebble: pebble_steps30k, ...), got {ladder!r}"
         )
     if not isinstance(grid.get("claims", []), list):
         raise GridError(f"{path}: claims is a list of claims, each a mapping of {', '.join(sorted(CLAIM_KEYS))}")

@@ -301,20 +301,33 @@ def mean_interval(values: np.ndarray, reps: int = 10_000, seed: int = 0) -> tupl
 
 
 def ladder_grids(files: list[Path]) -> list[Path]:
-    """The grid files among ``files`` that are label-response ladders (``ladder: true``)."""
+    """The grid files among ``files`` that are label-response ladders (``ladder: true`` or a mapping of arms)."""
     return [path for path in files if load_grid(path).get("ladder")]
 
 
-def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str, Any]:
+def arm_of(configuration: str, arms: dict[str, str]) -> str:
+    """The arm a configuration runs in its ladder: the name its grid's ``ladder`` mapping gives it, else its label;
+    SAC on an arm's final r̂ (``sac_on_<configuration>_reward``) as ``sac_on_<arm>_reward``."""
+    by_configuration = {configuration: arm for arm, configuration in arms.items()}
+    if configuration.startswith("sac_on_") and configuration.endswith("_reward"):
+        inner = configuration[len("sac_on_") : -len("_reward")]
+        return f"sac_on_{by_configuration.get(inner, inner)}_reward"
+    return by_configuration.get(configuration, configuration)
+
+
+def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder: Path | None = None) -> dict[str, Any]:
     """
     Per task (JSON-ready, for ``results.json``): SAC's ceiling and a random policy's floor; each arm's points, budget
     by budget (seeds, share of the ceiling with its 95% interval, mean last corr(r̂, r)); SAC from scratch on the
     final r̂ of the runs of a budget where the grid ran it (a variant named ``sac_on_<arm>_reward``); each arm's labels
     to the target beside PEBBLE's; and how many of the task's planned runs are in (``runs``: a ladder is read whole).
     """
-    rows, _, _ = collect(grid_files)
+    rows, _, _ = collect(grid_files, runs_folder)
+    ladders = {relative(path): load_grid(path).get("ladder") for path in grid_files}
     found: dict[str, dict[str, Any]] = {}
     for row in rows.values():
+        ladder = ladders[row["grid"]]
+        arm = arm_of(row["configuration"], ladder if isinstance(ladder, dict) else {})
         task = found.setdefault(row["task"], {"arms": {}, "on_final_reward": {}, "ceiling": None, "runs": [0, 0]})
         runs = runs_of(row)
         task["runs"] = [task["runs"][0] + len(runs), task["runs"][1] + len(row["specs"])]
@@ -327,10 +340,10 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble") -> dict[str,
                 raise SystemExit(f"{row['task']}: two SAC rows on the true reward in the ladders; keep one ceiling")
             task["ceiling"] = returns
         elif row["algo"] == "sac":  # SAC learning from the r̂ a ladder run saved
-            task["on_final_reward"].setdefault(row["configuration"], {})[int(row["feedback"])] = returns
+            task["on_final_reward"].setdefault(arm, {})[int(row["feedback"])] = returns
         else:
             corr = last_correlations(runs)
-            task["arms"].setdefault(row["configuration"], {})[int(row["feedback"])] = (returns, corr)
+            task["arms"].setdefault(arm, {})[int(row["feedback"])] = (returns, corr)
 
     def share(returns: np.ndarray, floor: float, ceiling: float | None) -> list[float] | None:
         if ceiling is None or ceiling == floor:
@@ -478,12 +491,15 @@ def main() -> None:
     parser.add_argument("what", choices=["screen", "ladders"])
     parser.add_argument("grids", nargs="*", type=Path, help="ladders: the ladder grid files")
     parser.add_argument("--reference", default="pebble", help="ladders: the arm whose top budget sets the target")
+    parser.add_argument(
+        "--runs-folder", type=Path, help="ladders: read the runs from this folder (a worktree's) in place of the grids' out"
+    )
     parser.add_argument("--print", action="store_true", help="screen: print the page, write no file")
     args = parser.parse_args()
     if args.what == "ladders":
         if not args.grids:
             parser.error("ladders needs the ladder grid files")
-        data = read_ladders(args.grids, args.reference)
+        data = read_ladders(args.grids, args.reference, args.runs_folder)
         print(render_labels_table(data) + "\n" + render_ladders(data))
         return
     data = read_screen()

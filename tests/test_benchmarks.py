@@ -275,6 +275,8 @@ def test_budget_and_ratio_left_out_of_a_grid_are_each_tasks_yaml_values(grid, tm
          "pride_settings is a mapping of PRIDE's arguments other than those its blocks set"),
         ("runs:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: first}\n", "seeds must be a list"),
         ("tasks: [walker-walk]\n", "a 'runs' list of blocks"),
+        ("ladder: [pebble]\nruns:\n  - {configurations: [pebble], tasks: [walker-walk], seeds: [0]}\n",
+         "ladder is true, false, or a mapping of arm names"),
     ],
 )  # fmt: skip
 def test_a_bad_grid_file_names_the_file_and_what_is_wrong(grid, tmp_path, text, message):

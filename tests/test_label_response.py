@@ -163,3 +163,10 @@ def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_
     assert "| cartpole-swingup | 3 of 3 | 50000 |" in text and "| cartpole-swingup | 3 of 3 | 100000 |" in text
     assert set(data["selection"]["studied"]) == {"point_mass-easy", "cartpole-swingup"}
     assert "reacher-easy: screened again" in text
+
+
+def test_a_ladder_names_its_arms_where_its_configurations_labels_differ(study):
+    arms = {"pebble": "pebble_steps30k", "pride": "pride_steps30k"}
+    assert study.arm_of("pebble_steps30k", arms) == "pebble" and study.arm_of("pride_steps30k", arms) == "pride"
+    assert study.arm_of("sac_on_pebble_steps30k_reward", arms) == "sac_on_pebble_reward"
+    assert study.arm_of("pebble_like_pride", {}) == "pebble_like_pride"  # ladder: true keeps the labels
