@@ -131,7 +131,7 @@ def replace_block(text: str, block: str, where: str, start: str = START, end: st
 def labels_block(ladders: dict[str, Any], folder: Path) -> str:
     """The labels-to-target table and, once a ladder is in, the figure, linked from a page in ``folder``."""
     if not ladders["tasks"]:
-        return "No label-response ladder has all its runs in yet.\n"
+        return label_response.NO_LADDER
     figure = os.path.relpath(LABELS_FIGURE, folder)
     return label_response.render_labels_table(ladders) + f"\n![Share of SAC's return against labels]({figure})\n"
 
@@ -186,10 +186,10 @@ def main() -> None:
         files = args.grids or sorted(GRIDS.glob("*.yml"))
         summary_first = sorted(files, key=lambda path: not grid.load_grid(path).get("summary"))
         data = recount(summary_first)
-        data["label_response"] = label_response.read_ladders(label_response.ladder_grids(files))
         if args.print:
             print(render_tables(data) + claims_section(data, level=2) + checks_section(data, level=2))
             return
+        data["label_response"] = label_response.read_ladders(label_response.ladder_grids(files))
         RESULTS.write_text(json.dumps(data, indent=1) + "\n")
     write_all(data)
     for folder in uncounted_runs(sorted(GRIDS.glob("*.yml"))):
