@@ -223,7 +223,9 @@ def bootstrap_labels(
     percentile bootstrap interval: every resample draws each budget's seeds of both arms with replacement, sets the
     target from the resampled PEBBLE at the top budget (``floor + TARGET_SHARE × (its return - floor)``, ``floor``
     the return of a random policy) and reads both arms on it. A ratio whose PEBBLE misses the target (arm ÷ ∞) is
-    left out of its interval, and counted (``undefined``), as the point ratio is then undefined.
+    left out of its interval, and counted (``undefined``), as the point ratio is then undefined. An arm whose mean
+    reaches the target at the ladder's lowest budget needs at most that many labels (``at_most``): its ratio is then
+    an upper bound, and where PEBBLE's is, the ratio is not read (``nan``).
 
     :param reference: PEBBLE's returns, one array of seeds per budget
     :param arm: the other arm's, per budget
@@ -252,12 +254,19 @@ def bootstrap_labels(
 
     reference_labels = labels_to_target(ladder, point_reference, target)
     arm_labels = labels_to_target(ladder, point_arm, target)
-    ratio = arm_labels / reference_labels if math.isfinite(reference_labels) else math.nan
+    # reached at the ladder's lowest budget: the arm needs at most that many, and its ratio is an upper bound
+    at_most_reference, at_most_arm = bool(point_reference[0] >= target), bool(point_arm[0] >= target)
+    ratio = arm_labels / reference_labels if math.isfinite(reference_labels) and not at_most_reference else math.nan
     return {
         "target": float(target),
-        "reference": {"labels": reference_labels, "interval": interval(labels_reference)},
-        "arm": {"labels": arm_labels, "interval": interval(labels_arm)},
-        "ratio": {"value": ratio, "interval": interval(defined), "undefined": int(np.isnan(ratios).sum())},
+        "reference": {"labels": reference_labels, "interval": interval(labels_reference), "at_most": at_most_reference},
+        "arm": {"labels": arm_labels, "interval": interval(labels_arm), "at_most": at_most_arm},
+        "ratio": {
+            "value": ratio,
+            "interval": interval(defined),
+            "undefined": int(np.isnan(ratios).sum()),
+            "at_most": at_most_arm,
+        },
         "resamples": reps,
         "seed": seed,
     }
@@ -317,12 +326,19 @@ def arm_of(configuration: str, arms: dict[str, str]) -> str:
     return by_configuration.get(configuration, configuration)
 
 
+def held_out_tasks(page: Path = SCREEN_PAGE) -> list[str]:
+    """The task the screen's selection holds out (its written ``.json``), none before the selection is read."""
+    path = page.with_suffix(".json")
+    return (json.loads(path.read_text())["selection"].get("held_out") or []) if path.exists() else []
+
+
 def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder: Path | None = None) -> dict[str, Any]:
     """
     Per task (JSON-ready, for ``results.json``): SAC's ceiling and a random policy's floor; each arm's points, budget
     by budget (seeds, share of the ceiling with its 95% interval, mean last corr(r̂, r)); SAC from scratch on the
     final r̂ of the runs of a budget where the grid ran it (a variant named ``sac_on_<arm>_reward``); each arm's labels
-    to the target beside PEBBLE's; and how many of the task's planned runs are in (``runs``: a ladder is read whole).
+    to the target beside PEBBLE's; how many of the task's planned runs are in (``runs``: a ladder is read whole); and
+    whether the screen's selection held the task out (``held_out``).
     """
     rows, _, _ = collect(grid_files, runs_folder)
     ladders = {relative(path): load_grid(path).get("ladder") for path in grid_files}
@@ -352,7 +368,7 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
             return None
         return [round(v, 4) for v in mean_interval((returns - floor) / (ceiling - floor))]
 
-    tasks = {}
+    tasks, held_out = {}, held_out_tasks()
     for name, task in found.items():
         floor = floor_of(name)
         ceiling = None if task["ceiling"] is None else float(task["ceiling"].mean())
@@ -389,13 +405,16 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
             "arms": arms,
             "on_final_reward": on_final,
             "labels": labels,
+            "held_out": name in held_out,
         }
     return {"reference": reference, "target_share": TARGET_SHARE, "tasks": tasks}
 
 
-def number_text(value: float) -> str:
-    """A count of labels or a ratio as the tables write it: ∞ where the ladder does not reach, — where undefined."""
-    return "∞" if value == math.inf else "—" if math.isnan(value) else f"{value:.2f}" if value < 10 else f"{value:.0f}"
+def number_text(value: float, at_most: bool = False) -> str:
+    """A count of labels or a ratio as the tables write it: ∞ where the ladder does not reach, — where undefined,
+    ≤ where it is an upper bound (reached at the ladder's lowest budget)."""
+    text = "∞" if value == math.inf else "—" if math.isnan(value) else f"{value:.2f}" if value < 10 else f"{value:.0f}"
+    return f"≤ {text}" if at_most and math.isfinite(value) else text
 
 
 def interval_text(values: list[float]) -> str:
@@ -415,13 +434,15 @@ def render_labels_table(data: dict[str, Any]) -> str:
     ]
     for name, task in data["tasks"].items():
         done, planned = task["runs"]
-        shown = name if done == planned else f"{name} ({done} of {planned} runs in: not a reading yet)"
+        shown = f"{name} (held out)" if task.get("held_out") else name
+        shown = shown if done == planned else f"{shown} ({done} of {planned} runs in: not a reading yet)"
         for arm, read in task["labels"].items():
             labels, ratio = read["arm"], read["ratio"]
             top = task["arms"][arm][-1]
             lines.append(
-                f"| {shown} | {arm} | {number_text(labels['labels'])} {interval_text(labels['interval'])} | "
-                f"{number_text(ratio['value'])} {interval_text(ratio['interval'])} | {share_text(top['share'])} "
+                f"| {shown} | {arm} | {number_text(labels['labels'], labels.get('at_most', False))} "
+                f"{interval_text(labels['interval'])} | {number_text(ratio['value'], ratio.get('at_most', False))} "
+                f"{interval_text(ratio['interval'])} | {share_text(top['share'])} "
                 f"({top['labels']} labels) |"
             )
     if len(lines) == 2:
@@ -429,7 +450,8 @@ def render_labels_table(data: dict[str, Any]) -> str:
     note = (
         f"\nThe target is {data['target_share']:.0%} of the share of SAC's return that {reference} reaches at the "
         "ladder's top budget; labels are interpolated on log2(budget) where an arm's mean first reaches it (∞: not "
-        "within the ladder); intervals are 95% percentile bootstraps over seeds.\n"
+        "within the ladder; ≤: reached at its lowest budget, so at most that many, and the ratio at most that; — where "
+        f"{reference} itself reaches it there); intervals are 95% percentile bootstraps over seeds.\n"
     )
     return "\n".join(lines) + "\n" + note
 

@@ -45,6 +45,18 @@ def test_an_arm_that_needs_half_the_labels_reads_a_ratio_near_a_half_and_one_tha
     flat = [5, 5, 5, 5, 5]  # an arm that does not respond to labels never reaches the target
     never = study.bootstrap_labels(LADDER, seeds_along(pebble, rng), seeds_along(flat, rng), floor=0.0, reps=500)
     assert never["arm"]["labels"] == math.inf and never["ratio"]["interval"][0] == math.inf
+    assert not (read["arm"]["at_most"] or read["ratio"]["at_most"] or read["reference"]["at_most"])
+
+
+def test_an_arm_at_the_target_from_the_lowest_budget_reads_at_most_that_many_labels(study):
+    rng = np.random.default_rng(2)
+    pebble, early = [10, 40, 70, 90, 100], [100, 100, 100, 100, 100]
+    read = study.bootstrap_labels(LADDER, seeds_along(pebble, rng), seeds_along(early, rng), floor=0.0, reps=500)
+    assert read["arm"]["labels"] == LADDER[0] and read["arm"]["at_most"] and read["ratio"]["at_most"]
+    assert study.number_text(read["ratio"]["value"], read["ratio"]["at_most"]).startswith("≤ 0.")
+    backwards = study.bootstrap_labels(LADDER, seeds_along(early, rng), seeds_along(pebble, rng), floor=0.0, reps=500)
+    assert backwards["reference"]["at_most"] and math.isnan(backwards["ratio"]["value"])  # PEBBLE's own is a bound
+    assert study.number_text(backwards["ratio"]["value"]) == "—"
 
 
 def test_the_screen_rule_takes_a_plateau_and_refuses_a_curve_still_rising(study):
@@ -127,6 +139,10 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     assert "| pebble | 128 | 4 | 1.01 [1.00, 1.01] | — | 0.95 [0.95, 0.95] (4 seeds) |" in study.render_ladders(data)
     study.draw_ladders(data, tmp_path / "figure.png")
     assert (tmp_path / "figure.png").stat().st_size > 0
+    assert walker["held_out"] is False
+    monkeypatch.setattr(study, "held_out_tasks", lambda: ["Pendulum-v1"])  # the screen's selection held it out
+    assert "| Pendulum-v1 (held out) | pride |" in study.render_labels_table(study.read_ladders([grid]))
+    monkeypatch.setattr(study, "held_out_tasks", lambda: [])
     (out / "pride_Pendulum-v1_s3_fb128_u0.25" / "result.json").unlink()  # a ladder not all in is not read as one
     partial = study.render_labels_table(study.read_ladders([grid]))
     assert "Pendulum-v1 (51 of 52 runs in: not a reading yet)" in partial
@@ -170,3 +186,12 @@ def test_a_ladder_names_its_arms_where_its_configurations_labels_differ(study):
     assert study.arm_of("pebble_steps30k", arms) == "pebble" and study.arm_of("pride_steps30k", arms) == "pride"
     assert study.arm_of("sac_on_pebble_steps30k_reward", arms) == "sac_on_pebble_reward"
     assert study.arm_of("pebble_like_pride", {}) == "pebble_like_pride"  # ladder: true keeps the labels
+
+
+def test_the_held_out_task_is_the_one_the_written_selection_names(study, tmp_path):
+    page = tmp_path / "label_response_screen.md"
+    assert study.held_out_tasks(page) == []  # no selection written yet
+    page.with_suffix(".json").write_text(json.dumps({"selection": {"studied": None, "held_out": None}}))
+    assert study.held_out_tasks(page) == []  # every seed not in yet
+    page.with_suffix(".json").write_text(json.dumps({"selection": {"studied": ["a"], "held_out": ["cartpole-swingup"]}}))
+    assert study.held_out_tasks(page) == ["cartpole-swingup"]
