@@ -202,6 +202,15 @@ def labels_to_target(budgets: np.ndarray, returns: np.ndarray, target: float) ->
     return float(2 ** (low + fraction * (high - low)))
 
 
+def deciding_budgets(budgets: list[int], labels: float) -> list[int]:
+    """The budgets a reading of ``labels`` turns on (the ladder grids' rule, part 3): the two either side of it, the
+    lowest two where it is reached at the lowest budget, none where the ladder does not reach it."""
+    if not math.isfinite(labels):
+        return []
+    above = next(i for i, budget in enumerate(budgets) if budget >= labels)
+    return list(budgets[max(above - 1, 0) : max(above - 1, 0) + 2])
+
+
 def resampled_means(per_budget: list[np.ndarray], rng: np.random.Generator, reps: int) -> np.ndarray:
     """(reps, budgets): the mean over seeds of each budget's runs, the seeds of each budget drawn with replacement."""
     return np.stack(
@@ -397,6 +406,7 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
                 labels[arm] = bootstrap_labels(
                     budgets, [pebble[b][0] for b in budgets], [points[b][0] for b in budgets], floor
                 )
+                labels[arm]["deciding"] = deciding_budgets(budgets, labels[arm]["arm"]["labels"])
         tasks[name] = {
             "floor": floor,
             "ceiling": ceiling,
@@ -461,10 +471,15 @@ def render_ladders(data: dict[str, Any]) -> str:
     lines = []
     for name, task in data["tasks"].items():
         ceiling = "not run" if task["ceiling"] is None else f"{task['ceiling']:.1f} ({task['ceiling_seeds']} seeds)"
+        deciding = "; ".join(
+            f"{arm} {', '.join(map(str, read.get('deciding', []))) or 'none'}" for arm, read in task["labels"].items()
+        )
         lines += [
             f"### {name}",
             "",
             f"SAC on the true reward: {ceiling}; a random policy: {task['floor']:.1f}.",
+            "",
+            f"The budgets each arm's labels to the target turn on (either side of it): {deciding or 'not read yet'}.",
             "",
             "| arm | labels | seeds | share of SAC [95% CI] | corr(r̂, r), last | SAC on the final r̂ [95% CI] |",
             "|---|---|---|---|---|---|",

@@ -48,6 +48,13 @@ def test_an_arm_that_needs_half_the_labels_reads_a_ratio_near_a_half_and_one_tha
     assert not (read["arm"]["at_most"] or read["ratio"]["at_most"] or read["reference"]["at_most"])
 
 
+def test_the_deciding_budgets_are_the_two_either_side_of_the_labels_to_the_target(study):
+    assert study.deciding_budgets(LADDER, 2**4.5) == [16, 32]
+    assert study.deciding_budgets(LADDER, 32.0) == [16, 32]  # reached exactly at a rung: it and the one below
+    assert study.deciding_budgets(LADDER, 8.0) == [8, 16]  # at the lowest budget: the lowest two
+    assert study.deciding_budgets(LADDER, math.inf) == []  # not within the ladder: its part (4) decides
+
+
 def test_an_arm_at_the_target_from_the_lowest_budget_reads_at_most_that_many_labels(study):
     rng = np.random.default_rng(2)
     pebble, early = [10, 40, 70, 90, 100], [100, 100, 100, 100, 100]
@@ -136,6 +143,7 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     table = study.render_labels_table(data)
     assert "| Pendulum-v1 | pride |" in table and "÷ pebble" in table
     assert "| pride | 8 | 4 |" in study.render_ladders(data)
+    assert walker["labels"]["pride"]["deciding"] == [16, 32] and "pride 16, 32" in study.render_ladders(data)
     assert "| pebble | 128 | 4 | 1.01 [1.00, 1.01] | — | 0.95 [0.95, 0.95] (4 seeds) |" in study.render_ladders(data)
     study.draw_ladders(data, tmp_path / "figure.png")
     assert (tmp_path / "figure.png").stat().st_size > 0
