@@ -345,8 +345,8 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
     """
     Per task (JSON-ready, for ``results.json``): SAC's ceiling and a random policy's floor; each arm's points, budget
     by budget (seeds, share of the ceiling with its 95% interval, mean last corr(r̂, r)); SAC from scratch on the
-    final r̂ of the runs of a budget where the grid ran it (a variant named ``sac_on_<arm>_reward``); each arm's labels
-    to the target beside PEBBLE's; how many of the task's planned runs are in (``runs``: a ladder is read whole); and
+    final r̂ of the runs of a budget where the grid ran it (a variant named ``sac_on_<arm>_reward``); the labels to the
+    target of each arm run at every budget of PEBBLE's, beside PEBBLE's; how many of the task's planned runs are in (``runs``: a ladder is read whole); and
     whether the screen's selection held the task out (``held_out``).
     """
     rows, _, _ = collect(grid_files, runs_folder)
@@ -401,8 +401,8 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
         labels = {}
         pebble = task["arms"].get(reference, {})
         for arm, points in task["arms"].items():
-            budgets = sorted(set(points) & set(pebble))
-            if len(budgets) >= 2:
+            budgets = sorted(pebble)
+            if len(budgets) >= 2 and set(budgets) <= set(points):  # an arm run at a few budgets only has no curve
                 labels[arm] = bootstrap_labels(
                     budgets, [pebble[b][0] for b in budgets], [points[b][0] for b in budgets], floor
                 )

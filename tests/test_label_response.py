@@ -119,19 +119,22 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
             write_ladder_run(out, "pride", seed, budget, b + 5 * seed)
         for budget, value in ((8, 200), (128, 950)):  # SAC from scratch on the final r̂ of PEBBLE's runs at 8 and 128
             write_ladder_run(out, "sac", seed, None, value, tag=f"_on_pebble_fb{budget}_reward")
+            write_ladder_run(out, "pebble", seed, budget, value, tag="_like_pride")  # an arm at two budgets only
     grid = tmp_path / "ladder.yml"
     grid.write_text(
         f"tier: label-response\nout: {out}\nladder: true\nruns:\n"
         f"  - {{configurations: [pebble, pride], tasks: [Pendulum-v1], seeds: 0-3, feedback: {LADDER}}}\n"
         "  - {configurations: [sac], tasks: [Pendulum-v1], seeds: 0-3}\n"
-        "  - {configurations: [sac_on_pebble_reward], tasks: [Pendulum-v1], seeds: 0-3, feedback: [8, 128]}\n"
+        "  - {configurations: [sac_on_pebble_reward, pebble_like_pride], tasks: [Pendulum-v1], seeds: 0-3,"
+        " feedback: [8, 128]}\n"
     )
     assert study.ladder_grids([grid, tmp_path / "other.yml"][:1]) == [grid]
     monkeypatch.setattr(study, "floor_of", lambda task: 0.0)
     data = json.loads(json.dumps(study.read_ladders([grid])))  # as results.json keeps it
     walker = data["tasks"]["Pendulum-v1"]
     assert walker["ceiling"] == pytest.approx(1001.5) and walker["ceiling_seeds"] == 4  # r̂'s own SAC runs are not it
-    assert walker["runs"] == [4 * (1 + 2 * len(LADDER) + 2)] * 2
+    assert walker["runs"] == [4 * (1 + 2 * len(LADDER) + 2 + 2)] * 2
+    assert len(walker["arms"]["pebble_like_pride"]) == 2 and "pebble_like_pride" not in walker["labels"]  # no curve
     on_final = {point["labels"]: point["share"][0] for point in walker["on_final_reward"]["sac_on_pebble_reward"]}
     assert on_final == {8: pytest.approx(200 / 1001.5, abs=1e-4), 128: pytest.approx(950 / 1001.5, abs=1e-4)}
     first = walker["arms"]["pebble"][0]
@@ -153,7 +156,7 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     monkeypatch.setattr(study, "held_out_tasks", lambda: [])
     (out / "pride_Pendulum-v1_s3_fb128_u0.25" / "result.json").unlink()  # a ladder not all in is not read as one
     partial = study.render_labels_table(study.read_ladders([grid]))
-    assert "Pendulum-v1 (51 of 52 runs in: not a reading yet)" in partial
+    assert "Pendulum-v1 (59 of 60 runs in: not a reading yet)" in partial
     page = load_script("results_page")
     block = page.labels_block(data, page.ROOT / "benchmarks" / "results")
     assert "(../../docs/_generated/label_response.png)" in block  # the figure, linked from the results README
