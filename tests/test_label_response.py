@@ -190,6 +190,11 @@ def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_
     assert "| cartpole-swingup | 3 of 3 | 50000 |" in text and "| cartpole-swingup | 3 of 3 | 100000 |" in text
     assert set(data["selection"]["studied"]) == {"point_mass-easy", "cartpole-swingup"}
     assert "reacher-easy: screened again" in text
+    both = {**again, "reacher-easy": {**entry(0.3, 100000), "earlier": [first["reacher-easy"]], "look": 1}}
+    assert "new candidates are screened next" in study.render_screen({"tasks": both, "selection": study.select(both)})
+    third = {**both, "walker-stand": {**entry(0.3, 50000), "look": 2}}  # a new candidate that fails gets no longer look
+    text = study.render_screen({"tasks": third, "selection": study.select(third)})
+    assert "walker-stand: screened again" not in text and "new candidates in a third look; the selection" in text
 
 
 def test_a_ladder_names_its_arms_where_its_configurations_labels_differ(study):
