@@ -39,7 +39,7 @@ from results_recount import GRIDS, ROOT, collect, last_correlations, relative, r
 
 SCREEN = GRIDS / "label-response-screen.yml"
 #: the second look, at 100k steps, at the candidates the first one did not qualify (the rule's part 3)
-RESCREEN = GRIDS / "pending" / "label-response-rescreen.yml"
+RESCREEN = GRIDS / "label-response-rescreen.yml"
 #: the third look, at new dm_control candidates, where the second one leaves the selection short
 THIRD_LOOK = GRIDS / "pending" / "label-response-third-look.yml"
 SCREEN_PAGE = ROOT / "benchmarks" / "results" / "label_response_screen.md"
