@@ -353,7 +353,7 @@ def arm_of(configuration: str, arms: dict[str, str]) -> str:
 
 
 def held_out_tasks(page: Path = SCREEN_PAGE) -> list[str]:
-    """The task the screen's selection holds out (its written ``.json``), none before the selection is read."""
+    """The tasks the screen's selection holds out (its written ``.json``), none before the selection is read."""
     path = page.with_suffix(".json")
     return (json.loads(path.read_text())["selection"].get("held_out") or []) if path.exists() else []
 
@@ -363,8 +363,8 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
     Per task (JSON-ready, for ``results.json``): SAC's ceiling and a random policy's floor; each arm's points, budget
     by budget (seeds, share of the ceiling with its 95% interval, mean last corr(r̂, r)); SAC from scratch on the
     final r̂ of the runs of a budget where the grid ran it (a variant named ``sac_on_<arm>_reward``); the labels to the
-    target of each arm run at every budget of PEBBLE's, beside PEBBLE's; how many of the task's planned runs are in (``runs``: a ladder is read whole); and
-    whether the screen's selection held the task out (``held_out``).
+    target of each arm run at every budget of PEBBLE's, beside PEBBLE's; how many of the task's planned runs are in
+    (``runs``: a ladder is read whole); and whether the screen's selection held the task out (``held_out``).
     """
     rows, _, _ = collect(grid_files, runs_folder)
     ladders = {relative(path): load_grid(path).get("ladder") for path in grid_files}
