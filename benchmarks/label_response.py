@@ -140,14 +140,6 @@ def select(tasks: dict[str, dict]) -> dict[str, Any]:
     return {"studied": studied, "held_out": rest[:HELD_OUT], "waiting_for": [], "dm_control_missing": dm_control_missing}
 
 
-#: what the closing line says of new candidates, by the last look that screened any
-NEW_CANDIDATES = (
-    "; new candidates are screened next.",
-    "; new candidates are screened next.",
-    ", and new candidates in a third look; the selection above is final.",
-)
-
-
 def needs_another_look(tasks: dict[str, dict]) -> bool:
     """Whether the looks read so far, every seed of them in, leave the selection short: fewer than the tasks it
     studies and holds out, or none from dm_control (the condition a third look runs on)."""
@@ -207,7 +199,11 @@ def render_screen(data: dict[str, Any]) -> str:
                 f"{', '.join(failed)}: screened again at 100k steps before the selection is final."
                 if failed
                 else "every task that failed at 50k steps was screened again at 100k steps"
-                + NEW_CANDIDATES[min(max(entry.get("look", 0) for entry in data["tasks"].values()), 2)]
+                + (
+                    ", and new candidates in a third look; the selection above is final."
+                    if any(entry.get("look", 0) == 2 for entry in data["tasks"].values())
+                    else "; new candidates are screened next."
+                )
             )
         )
     return "\n".join(lines) + "\n"
