@@ -362,10 +362,26 @@ def arm_of(configuration: str, arms: dict[str, str]) -> str:
     return by_configuration.get(configuration, configuration)
 
 
-def held_out_tasks(page: Path = SCREEN_PAGE) -> list[str]:
-    """The tasks the screen's selection holds out (its written ``.json``), none before the selection is read."""
+def written_selection(page: Path = SCREEN_PAGE) -> dict[str, Any]:
+    """The screen's selection as its page's ``.json`` holds it (empty before the screen is read)."""
     path = page.with_suffix(".json")
-    return (json.loads(path.read_text())["selection"].get("held_out") or []) if path.exists() else []
+    return json.loads(path.read_text())["selection"] if path.exists() else {}
+
+
+def held_out_tasks(page: Path = SCREEN_PAGE) -> list[str]:
+    """The tasks the screen's selection holds out, none before the selection is read."""
+    return written_selection(page).get("held_out") or []
+
+
+def no_ladder_text(page: Path = SCREEN_PAGE) -> str:
+    """What the pages say where no ladder has a reading: the tasks the screen selected, once it has."""
+    selection = written_selection(page)
+    if not selection.get("studied"):
+        return NO_LADDER
+    held_out = f", with {' and '.join(selection['held_out'])} held out" if selection.get("held_out") else ""
+    studied = selection["studied"]
+    named = ", ".join(studied[:-1]) + f" and {studied[-1]}" if len(studied) > 1 else studied[0]
+    return f"The screen selected {named}{held_out}. " + NO_LADDER
 
 
 def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder: Path | None = None) -> dict[str, Any]:
@@ -483,7 +499,7 @@ def render_labels_table(data: dict[str, Any]) -> str:
                 f"({top['labels']} labels) |"
             )
     if len(lines) == 2:
-        return NO_LADDER
+        return no_ladder_text()
     note = (
         f"\nThe target is {data['target_share']:.0%} of the share of SAC's return that {reference} reaches at the "
         "ladder's top budget; labels are interpolated on log2(budget) where an arm's mean first reaches it (∞: not "

@@ -131,7 +131,7 @@ def replace_block(text: str, block: str, where: str, start: str = START, end: st
 def labels_block(ladders: dict[str, Any], folder: Path) -> str:
     """The labels-to-target table and, once a ladder is in, the figure, linked from a page in ``folder``."""
     if not ladders["tasks"]:
-        return label_response.NO_LADDER
+        return label_response.no_ladder_text()
     figure = os.path.relpath(LABELS_FIGURE, folder)
     return label_response.render_labels_table(ladders) + f"\n![Share of SAC's return against labels]({figure})\n"
 

@@ -160,7 +160,7 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     page = load_script("results_page")
     block = page.labels_block(data, page.ROOT / "benchmarks" / "results")
     assert "(../../docs/_generated/label_response.png)" in block  # the figure, linked from the results README
-    assert page.labels_block({"tasks": {}}, page.ROOT).startswith("No label-response ladder")
+    assert page.labels_block({"tasks": {}}, page.ROOT).endswith("No label-response ladder has all its runs in yet.\n")
 
 
 def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_says_so(study):
@@ -216,3 +216,5 @@ def test_the_held_out_task_is_the_one_the_written_selection_names(study, tmp_pat
     assert study.held_out_tasks(page) == []  # every seed not in yet
     page.with_suffix(".json").write_text(json.dumps({"selection": {"studied": ["a"], "held_out": ["cartpole-swingup"]}}))
     assert study.held_out_tasks(page) == ["cartpole-swingup"]
+    assert study.no_ladder_text(page).startswith("The screen selected a, with cartpole-swingup held out. No label")
+    assert study.no_ladder_text(tmp_path / "missing.md") == study.NO_LADDER
