@@ -3,6 +3,7 @@ How many labels does a policy need? The label-response study's reading of its ru
 
     python benchmarks/label_response.py screen            # which candidate tasks qualify, by the screen's rule
     python benchmarks/label_response.py ladders GRID...   # print ladders' tables (e.g. a grid still in pending/)
+    python benchmarks/label_response.py provenance        # does every run's commit hold the rule it is read by?
 
 ``screen`` reads the SAC runs of the screen's grid files (in ``pending/`` until their runs are in) and applies the rule their
 descriptions state (written before their runs): per task, the mean curve over seeds; its plateau gap, (best - mean of
@@ -22,8 +23,10 @@ reaches it (``inf``: not within the ladder), and the ratio of each arm's labels 
 """
 
 import argparse
+import functools
 import json
 import math
+import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -568,13 +571,61 @@ def draw_ladders(data: dict[str, Any], path: Path) -> None:
     figure.savefig(path, dpi=120)
 
 
+def study_grids() -> list[Path]:
+    """The study's grid files, the screen's looks and the ladders, committed or pending."""
+    return sorted(GRIDS.glob("label-response*.yml")) + sorted(GRIDS.glob("pending/label-response*.yml"))
+
+
+def rule_commit(path: Path) -> str | None:
+    """The commit that first added the grid file ``path`` (followed across moves): when its rule was written; None
+    where git holds no such commit."""
+    found = subprocess.run(
+        ["git", "-C", str(ROOT), "log", "--follow", "--diff-filter=A", "--format=%H", "--", str(path.resolve())],
+        capture_output=True,
+        text=True,
+    ).stdout.split()
+    return found[-1] if found else None
+
+
+@functools.cache
+def holds(commit: str, ancestor: str) -> bool:
+    """Whether ``commit``'s history holds ``ancestor`` (the same commit included)."""
+    return not subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", ancestor, commit]).returncode
+
+
+def runs_before_their_rule(grid_files: list[Path], runs_folder: Path | None = None) -> tuple[list[str], int]:
+    """
+    The runs of the grid files whose code did not hold their grid file's rule: the commit each run recorded
+    (``settings.json``) does not descend from the commit that first added the grid file, or it recorded none.
+    Returns those runs' folder names and the number of runs read.
+    """
+    late, read = [], 0
+    for path in grid_files:
+        rule = rule_commit(path)
+        rows, _, _ = collect([path], runs_folder)
+        for row in rows.values():
+            for spec in row["specs"]:
+                settings = row["out"] / run.run_name(spec) / "settings.json"
+                if not settings.exists():
+                    continue
+                read += 1
+                commit = json.loads(settings.read_text()).get("version", {}).get("commit")
+                if rule is None or not commit or not holds(commit, rule):
+                    late.append(settings.parent.name)
+    return late, read
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("what", choices=["screen", "ladders"])
-    parser.add_argument("grids", nargs="*", type=Path, help="ladders: the ladder grid files")
+    parser.add_argument("what", choices=["screen", "ladders", "provenance"])
+    parser.add_argument(
+        "grids", nargs="*", type=Path, help="ladders: the ladder grid files; provenance: the grid files (default: the study's)"
+    )
     parser.add_argument("--reference", default="pebble", help="ladders: the arm whose top budget sets the target")
     parser.add_argument(
-        "--runs-folder", type=Path, help="ladders: read the runs from this folder (a worktree's) in place of the grids' out"
+        "--runs-folder",
+        type=Path,
+        help="ladders, provenance: read the runs from this folder (a worktree's) in place of the grids' out",
     )
     parser.add_argument("--print", action="store_true", help="screen: print the page, write no file")
     args = parser.parse_args()
@@ -584,6 +635,14 @@ def main() -> None:
         data = read_ladders(args.grids, args.reference, args.runs_folder)
         print(render_labels_table(data) + "\n" + render_ladders(data))
         return
+    if args.what == "provenance":
+        files = args.grids or study_grids()
+        late, read = runs_before_their_rule(files, args.runs_folder)
+        print(
+            f"{read} runs of {len(files)} grid files read; "
+            + (f"run before their rule: {', '.join(late)}" if late else "each ran on a commit that holds its grid file's rule")
+        )
+        sys.exit(1 if late else 0)
     data = read_screen()
     text = render_screen(data)
     if args.print:

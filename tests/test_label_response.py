@@ -3,6 +3,7 @@ curve that should fail it."""
 
 import json
 import math
+import subprocess
 
 import numpy as np
 import pytest
@@ -218,3 +219,20 @@ def test_the_held_out_task_is_the_one_the_written_selection_names(study, tmp_pat
     assert study.held_out_tasks(page) == ["cartpole-swingup"]
     assert study.no_ladder_text(page).startswith("The screen selected a, with cartpole-swingup held out. No label")
     assert study.no_ladder_text(tmp_path / "missing.md") == study.NO_LADDER
+
+
+def test_a_run_on_code_older_than_its_rule_is_named(study, tmp_path):
+    """Every run of the study's grids recorded a commit that holds its grid file's rule (the commit that first added
+    the file); a run that recorded the commit before the rule was written is named."""
+    shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], capture_output=True, text=True).stdout
+    if shallow.strip() != "false":
+        pytest.skip("the rule's commit needs the repository's whole history")
+    late, read = study.runs_before_their_rule(study.study_grids())
+    assert late == [] and read > 0
+    rule = study.rule_commit(study.SCREEN)
+    before = subprocess.run(["git", "rev-parse", f"{rule}^"], capture_output=True, text=True, check=True).stdout.strip()
+    for seed, commit in ((0, before), (1, rule)):
+        folder = tmp_path / f"sac_Pendulum-v1_s{seed}"
+        folder.mkdir()
+        (folder / "settings.json").write_text(json.dumps({"version": {"commit": commit}}))
+    assert study.runs_before_their_rule([study.SCREEN], tmp_path) == (["sac_Pendulum-v1_s0"], 2)
