@@ -5,12 +5,7 @@ How many labels does a policy need? The label-response study's reading of its ru
     python benchmarks/label_response.py ladders GRID...   # print ladders' tables (e.g. a grid still in pending/)
     python benchmarks/label_response.py provenance        # does every run's commit hold the rule it is read by?
 
-``screen`` reads the SAC runs of the screen's grid files (in ``pending/`` until their runs are in) and applies the rule their
-descriptions state (written before their runs): per task, the mean curve over seeds; its plateau gap, (best - mean of
-the last third of the evaluations) / (best - first evaluation), must be at most ``PLATEAU_GAP``, and the median of
-its runs' wall times must be at most ``MAX_MINUTES`` (runs on a shared machine also time their neighbours); of the
-qualifying tasks the three cheapest are studied (at least one from dm_control) and the next is held out. It writes
-``benchmarks/results/label_response_screen.md`` and ``.json``.
+``screen`` is ``label_response_screen.py``'s reading: which candidate tasks qualify and which the study selects.
 
 The ladders (grid files with ``ladder: true``) are read by ``benchmarks/results_page.py`` through
 :func:`read_ladders` into ``results.json``, the README, the results README, the docs' results page and
@@ -23,10 +18,8 @@ reaches it (``inf``: not within the ladder), and the ratio of each arm's labels 
 """
 
 import argparse
-import functools
 import json
 import math
-import subprocess
 import sys
 from pathlib import Path
 from typing import Any
@@ -38,178 +31,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import plot
 import run
 from grid import load_grid
-from results_recount import GRIDS, ROOT, collect, last_correlations, relative, runs_of
+from label_response_screen import SCREEN_PAGE, held_out_tasks, no_ladder_text, read_screen, render_screen
+from results_recount import GRIDS, ROOT, collect, last_correlations, relative, runs_before_their_rule, runs_of
 
-SCREEN = GRIDS / "label-response-screen.yml"
-#: the second look, at 100k steps, at the candidates the first one did not qualify (the rule's part 3)
-RESCREEN = GRIDS / "label-response-rescreen.yml"
-#: the third look, at new dm_control candidates, where the second one leaves the selection short
-THIRD_LOOK = GRIDS / "label-response-third-look.yml"
-#: the screen's looks in their order, named by their grid files (each committed or pending)
-LOOKS = (SCREEN.name, RESCREEN.name, THIRD_LOOK.name)
-SCREEN_PAGE = ROOT / "benchmarks" / "results" / "label_response_screen.md"
-#: the screen's rule (the grid file's description states it in words)
-PLATEAU_GAP = 0.05
-MAX_MINUTES = 30
-STUDIED, HELD_OUT = 3, 1
 #: labels to the target: this share of what PEBBLE reaches at the ladder's top budget
 TARGET_SHARE = 0.9
-
-
-def plateau_gap(curve: np.ndarray) -> float:
-    """(best - mean of the last third of the evaluations) / (best - first evaluation): 0 at a plateau at the best."""
-    last = curve[-math.ceil(len(curve) / 3) :]
-    rise = curve.max() - curve[0]
-    return float((curve.max() - last.mean()) / rise) if rise > 0 else math.inf
-
-
-def is_dm_control(task: str) -> bool:
-    from sb3_pride.envs import DM_CONTROL_TASKS
-
-    return task in DM_CONTROL_TASKS
-
-
-def screen_grids() -> list[Path]:
-    """The screen's grid files, in the order of its looks (where committed or pending)."""
-    return [path for name in LOOKS for path in (GRIDS / name, GRIDS / "pending" / name) if path.exists()]
-
-
-def read_screen(grid_files: list[Path] | None = None, runs_folder: Path | None = None) -> dict[str, Any]:
-    """
-    Each task of the screen with its seeds' curves read by the rule, and the selection the rule makes. A task a later
-    grid screens again (longer) is read by its last look; the earlier one is kept beside it (``earlier``).
-    """
-    tasks: dict[str, dict[str, Any]] = {}
-    for position, grid_file in enumerate(grid_files or screen_grids()):
-        look = LOOKS.index(grid_file.name) if grid_file.name in LOOKS else position
-        if look >= 2 and not needs_another_look(tasks):  # a third look runs only where the selection is short
-            break
-        for task, entry in read_look(grid_file, runs_folder).items():
-            entry["look"] = look
-            if task in tasks:
-                entry["earlier"] = [*tasks[task].pop("earlier", []), tasks[task]]
-            tasks[task] = entry
-    return {"tasks": tasks, "selection": select(tasks)}
-
-
-def read_look(grid_file: Path, runs_folder: Path | None = None) -> dict[str, dict[str, Any]]:
-    """One grid of the screen: each task's entry as the rule reads it."""
-    rows, _, _ = collect([grid_file], runs_folder)
-    tasks: dict[str, dict[str, Any]] = {}
-    for row in rows.values():
-        runs = runs_of(row)
-        if not runs:
-            planned = run.run_kwargs(row["specs"][0])[0]
-            tasks[row["task"]] = {"seeds": 0, "planned": len(row["specs"]), "steps": planned}
-            continue
-        length = min(len(found["curve"]) for found in runs)
-        curve = np.mean([found["curve"]["true_return"][:length] for found in runs], axis=0)
-        minutes = [found["result"]["seconds"] / 60 for found in runs]
-        gap = plateau_gap(curve)
-        qualifies = bool(gap <= PLATEAU_GAP and np.median(minutes) <= MAX_MINUTES)
-        tasks[row["task"]] = {
-            "seeds": len(runs),
-            "planned": len(row["specs"]),
-            "steps": int(runs[0]["curve"]["step"][length - 1]),
-            "best": round(float(curve.max()), 2),
-            "last_third": round(float(curve[-math.ceil(length / 3) :].mean()), 2),
-            "first": round(float(curve[0]), 2),
-            "plateau_gap": round(gap, 4),
-            "minutes": {"median": round(float(np.median(minutes)), 1), "max": round(float(np.max(minutes)), 1)},
-            "qualifies": qualifies,
-            # the rule as first written read the slowest run: a task that qualifies only by the median says so
-            "by_median_only": qualifies and bool(np.max(minutes) > MAX_MINUTES),
-            "dm_control": is_dm_control(row["task"]),
-        }
-    return tasks
-
-
-def select(tasks: dict[str, dict]) -> dict[str, Any]:
-    """The rule's choice among the tasks whose every planned seed is in: the three cheapest qualifying tasks (one of
-    them from dm_control) and the next one, held out; ``None`` until every candidate has all its seeds."""
-    if any(entry["seeds"] < entry["planned"] for entry in tasks.values()):
-        return {
-            "studied": None,
-            "held_out": None,
-            "waiting_for": sorted(t for t, e in tasks.items() if e["seeds"] < e["planned"]),
-        }
-    ranked = sorted((task for task, entry in tasks.items() if entry["qualifies"]), key=lambda t: tasks[t]["minutes"]["median"])
-    studied = ranked[:STUDIED]
-    dmc = [task for task in ranked if tasks[task]["dm_control"]]
-    if studied and dmc and not set(studied) & set(dmc):
-        studied = studied[: STUDIED - 1] + dmc[:1]
-    rest = [task for task in ranked if task not in studied]
-    dm_control_missing = not set(studied) & set(dmc)
-    return {"studied": studied, "held_out": rest[:HELD_OUT], "waiting_for": [], "dm_control_missing": dm_control_missing}
-
-
-def needs_another_look(tasks: dict[str, dict]) -> bool:
-    """Whether the looks read so far, every seed of them in, leave the selection short: fewer than the tasks it
-    studies and holds out, or none from dm_control (the condition a third look runs on)."""
-    selection = select(tasks)
-    if selection["studied"] is None:
-        return False
-    short = len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT
-    return short or bool(selection["dm_control_missing"])
-
-
-def render_screen(data: dict[str, Any]) -> str:
-    lines = [
-        "# The label-response screen",
-        "",
-        "Generated by `python benchmarks/label_response.py screen` from the runs of "
-        f"`{relative(SCREEN)}` (SAC on the true reward, the tier's settings), for the tasks it screened again at "
-        f"100k steps `{relative(RESCREEN)}` and, for new candidates where the looks before left the selection short, "
-        f"`{relative(THIRD_LOOK)}`; the rule is the first grid file's description: a "
-        f"task qualifies where its mean curve's plateau gap is at most {PLATEAU_GAP} and its median run took at most "
-        f"{MAX_MINUTES} minutes (the machine is shared: a run's time also measures its neighbours).",
-        "",
-        "| task | seeds | steps | first | best | last third | plateau gap | minutes per run (median / max) | qualifies |",
-        "|---|---|---|---|---|---|---|---|---|",
-    ]
-    looks = [(task, look) for task, entry in data["tasks"].items() for look in [*entry.get("earlier", []), entry]]
-    for task, entry in looks:
-        if not entry["seeds"]:
-            lines.append(f"| {task} | 0 of {entry['planned']} | {entry['steps']} | — | — | — | — | — | not run |")
-            continue
-        minutes = entry["minutes"]
-        lines.append(
-            f"| {task} | {entry['seeds']} of {entry['planned']} | {entry['steps']} | {entry['first']:.1f} | "
-            f"{entry['best']:.1f} | {entry['last_third']:.1f} | {entry['plateau_gap']:.3f} | "
-            f"{minutes['median']:.1f} / {minutes['max']:.1f} | {'yes' if entry['qualifies'] else 'no'}"
-            f"{' (by the median run only)' if entry.get('by_median_only') else ''}"
-            f"{' so far' if entry['seeds'] < entry['planned'] else ''} |"
-        )
-    selection = data["selection"]
-    lines.append("")
-    if selection["studied"] is None:
-        lines.append(f"No selection yet: waiting for every seed of {', '.join(selection['waiting_for'])}.")
-    else:
-        lines.append(
-            f"Studied: {', '.join(selection['studied']) or 'none'}; held out: {', '.join(selection['held_out']) or 'none'}."
-        )
-    failed = [  # failed at the first look and not yet screened again
-        task
-        for task, entry in data["tasks"].items()
-        if not entry.get("qualifies") and "earlier" not in entry and not entry.get("look", 0)
-    ]
-    if selection["studied"] is not None and selection.get("dm_control_missing"):
-        lines.append("No dm_control task qualifies: the selection holds none, where the rule asks for one.")
-    if selection["studied"] is not None and len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT:
-        lines.append(
-            f"Fewer than {STUDIED + HELD_OUT} tasks qualify: by the rule's part (3), "
-            + (
-                f"{', '.join(failed)}: screened again at 100k steps before the selection is final."
-                if failed
-                else "every task that failed at 50k steps was screened again at 100k steps"
-                + (
-                    ", and new candidates in a third look; the selection above is final."
-                    if any(entry.get("look", 0) == 2 for entry in data["tasks"].values())
-                    else "; new candidates are screened next."
-                )
-            )
-        )
-    return "\n".join(lines) + "\n"
 
 
 def labels_to_target(budgets: np.ndarray, returns: np.ndarray, target: float) -> float:
@@ -312,8 +138,6 @@ def bootstrap_labels(
 
 
 FLOORS = ROOT / "benchmarks" / "results" / "label_response_floors.json"
-#: what the pages say where no ladder has a reading
-NO_LADDER = "No label-response ladder has all its runs in yet.\n"
 
 
 def random_return(task: str, episodes: int = 10, seed: int = 0) -> float:
@@ -363,28 +187,6 @@ def arm_of(configuration: str, arms: dict[str, str]) -> str:
         inner = configuration[len("sac_on_") : -len("_reward")]
         return f"sac_on_{by_configuration.get(inner, inner)}_reward"
     return by_configuration.get(configuration, configuration)
-
-
-def written_selection(page: Path = SCREEN_PAGE) -> dict[str, Any]:
-    """The screen's selection as its page's ``.json`` holds it (empty before the screen is read)."""
-    path = page.with_suffix(".json")
-    return json.loads(path.read_text())["selection"] if path.exists() else {}
-
-
-def held_out_tasks(page: Path = SCREEN_PAGE) -> list[str]:
-    """The tasks the screen's selection holds out, none before the selection is read."""
-    return written_selection(page).get("held_out") or []
-
-
-def no_ladder_text(page: Path = SCREEN_PAGE) -> str:
-    """What the pages say where no ladder has a reading: the tasks the screen selected, once it has."""
-    selection = written_selection(page)
-    if not selection.get("studied"):
-        return NO_LADDER
-    held_out = f", with {' and '.join(selection['held_out'])} held out" if selection.get("held_out") else ""
-    studied = selection["studied"]
-    named = ", ".join(studied[:-1]) + f" and {studied[-1]}" if len(studied) > 1 else studied[0]
-    return f"The screen selected {named}{held_out}. " + NO_LADDER
 
 
 def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder: Path | None = None) -> dict[str, Any]:
@@ -574,45 +376,6 @@ def draw_ladders(data: dict[str, Any], path: Path) -> None:
 def study_grids() -> list[Path]:
     """The study's grid files, the screen's looks and the ladders, committed or pending."""
     return sorted(GRIDS.glob("label-response*.yml")) + sorted(GRIDS.glob("pending/label-response*.yml"))
-
-
-def rule_commit(path: Path) -> str | None:
-    """The commit that first added the grid file ``path`` (followed across moves): when its rule was written; None
-    where git holds no such commit."""
-    found = subprocess.run(
-        ["git", "-C", str(ROOT), "log", "--follow", "--diff-filter=A", "--format=%H", "--", str(path.resolve())],
-        capture_output=True,
-        text=True,
-    ).stdout.split()
-    return found[-1] if found else None
-
-
-@functools.cache
-def holds(commit: str, ancestor: str) -> bool:
-    """Whether ``commit``'s history holds ``ancestor`` (the same commit included)."""
-    return not subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", ancestor, commit]).returncode
-
-
-def runs_before_their_rule(grid_files: list[Path], runs_folder: Path | None = None) -> tuple[list[str], int]:
-    """
-    The runs of the grid files whose code did not hold their grid file's rule: the commit each run recorded
-    (``settings.json``) does not descend from the commit that first added the grid file, or it recorded none.
-    Returns those runs' folder names and the number of runs read.
-    """
-    late, read = [], 0
-    for path in grid_files:
-        rule = rule_commit(path)
-        rows, _, _ = collect([path], runs_folder)
-        for row in rows.values():
-            for spec in row["specs"]:
-                settings = row["out"] / run.run_name(spec) / "settings.json"
-                if not settings.exists():
-                    continue
-                read += 1
-                commit = json.loads(settings.read_text()).get("version", {}).get("commit")
-                if rule is None or not commit or not holds(commit, rule):
-                    late.append(settings.parent.name)
-    return late, read
 
 
 def main() -> None:

@@ -534,3 +534,42 @@ def read_check(
         "planned": planned,
         "passes": passes,
     }
+
+
+def rule_commit(path: Path) -> str | None:
+    """The commit that first added the grid file ``path`` (followed across moves): when its rule was written; None
+    where git holds no such commit."""
+    found = subprocess.run(
+        ["git", "-C", str(ROOT), "log", "--follow", "--diff-filter=A", "--format=%H", "--", str(path.resolve())],
+        capture_output=True,
+        text=True,
+    ).stdout.split()
+    return found[-1] if found else None
+
+
+@functools.cache
+def holds(commit: str, ancestor: str) -> bool:
+    """Whether ``commit``'s history holds ``ancestor`` (the same commit included)."""
+    return not subprocess.run(["git", "-C", str(ROOT), "merge-base", "--is-ancestor", ancestor, commit]).returncode
+
+
+def runs_before_their_rule(grid_files: list[Path], runs_folder: Path | None = None) -> tuple[list[str], int]:
+    """
+    The runs of the grid files whose code did not hold their grid file's rule: the commit each run recorded
+    (``settings.json``) does not descend from the commit that first added the grid file, or it recorded none.
+    Returns those runs' folder names and the number of runs read.
+    """
+    late, read = [], 0
+    for path in grid_files:
+        rule = rule_commit(path)
+        rows, _, _ = collect([path], runs_folder)
+        for row in rows.values():
+            for spec in row["specs"]:
+                settings = row["out"] / run.run_name(spec) / "settings.json"
+                if not settings.exists():
+                    continue
+                read += 1
+                commit = json.loads(settings.read_text()).get("version", {}).get("commit")
+                if rule is None or not commit or not holds(commit, rule):
+                    late.append(settings.parent.name)
+    return late, read

@@ -16,6 +16,16 @@ def study():
     return load_script("label_response")
 
 
+@pytest.fixture(scope="module")
+def screen():
+    return load_script("label_response_screen")
+
+
+@pytest.fixture(scope="module")
+def recount():
+    return load_script("results_recount")
+
+
 LADDER = [8, 16, 32, 64, 128]
 
 
@@ -67,16 +77,16 @@ def test_an_arm_at_the_target_from_the_lowest_budget_reads_at_most_that_many_lab
     assert study.number_text(backwards["ratio"]["value"]) == "—"
 
 
-def test_the_screen_rule_takes_a_plateau_and_refuses_a_curve_still_rising(study):
+def test_the_screen_rule_takes_a_plateau_and_refuses_a_curve_still_rising(screen):
     plateau = np.array([0, 300, 600, 800, 900, 920, 910, 915, 905])
     rising = np.linspace(0, 900, 9)
-    assert study.plateau_gap(plateau) <= study.PLATEAU_GAP
-    assert study.plateau_gap(rising) > study.PLATEAU_GAP
+    assert screen.plateau_gap(plateau) <= screen.PLATEAU_GAP
+    assert screen.plateau_gap(rising) > screen.PLATEAU_GAP
     negative = np.array([-1400, -900, -300, -160, -150, -155, -152, -149, -151])  # Pendulum's returns are negative
-    assert study.plateau_gap(negative) <= study.PLATEAU_GAP
+    assert screen.plateau_gap(negative) <= screen.PLATEAU_GAP
 
 
-def test_the_screen_selects_the_cheapest_qualifying_tasks_with_one_from_dm_control(study):
+def test_the_screen_selects_the_cheapest_qualifying_tasks_with_one_from_dm_control(screen):
     def entry(minutes: float, qualifies: bool, dmc: bool) -> dict:
         return {"seeds": 3, "planned": 3, "minutes": {"median": minutes}, "qualifies": qualifies, "dm_control": dmc}
 
@@ -88,11 +98,11 @@ def test_the_screen_selects_the_cheapest_qualifying_tasks_with_one_from_dm_contr
         "reacher-easy": entry(13, False, True),
         "point_mass-easy": entry(20, True, True),
     }
-    selection = study.select(tasks)
+    selection = screen.select(tasks)
     assert selection["studied"] == ["Pendulum-v1", "Reacher-v5", "cartpole-swingup"]
     assert selection["held_out"] == ["InvertedDoublePendulum-v5"]
     tasks["Reacher-v5"]["seeds"] = 2
-    assert study.select(tasks)["studied"] is None  # no selection before every seed is in
+    assert screen.select(tasks)["studied"] is None  # no selection before every seed is in
 
 
 def write_ladder_run(out, algo: str, seed: int, budget: int | None, primary: float, tag: str = "") -> None:
@@ -164,9 +174,9 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     assert page.labels_block({"tasks": {}}, page.ROOT).endswith("No label-response ladder has all its runs in yet.\n")
 
 
-def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_says_so(study):
+def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_says_so(screen):
     def entry(gap: float, steps: int) -> dict:
-        qualifies = gap <= study.PLATEAU_GAP
+        qualifies = gap <= screen.PLATEAU_GAP
         minutes = {"median": 10.0, "max": 12.0}
         return {
             "seeds": 3,
@@ -182,25 +192,25 @@ def test_a_task_screened_again_is_read_by_its_longer_look_and_a_short_selection_
         }
 
     first = {"cartpole-swingup": entry(0.08, 50000), "reacher-easy": entry(0.4, 50000), "point_mass-easy": entry(0.0, 50000)}
-    data = {"tasks": first, "selection": study.select(first)}
-    assert "reacher-easy: screened again at 100k steps" in study.render_screen(data)
-    assert "cartpole-swingup, reacher-easy" in study.render_screen(data)
+    data = {"tasks": first, "selection": screen.select(first)}
+    assert "reacher-easy: screened again at 100k steps" in screen.render_screen(data)
+    assert "cartpole-swingup, reacher-easy" in screen.render_screen(data)
     again = {**first, "cartpole-swingup": {**entry(0.02, 100000), "earlier": [first["cartpole-swingup"]]}}
-    data = {"tasks": again, "selection": study.select(again)}
-    text = study.render_screen(data)
+    data = {"tasks": again, "selection": screen.select(again)}
+    text = screen.render_screen(data)
     assert "| cartpole-swingup | 3 of 3 | 50000 |" in text and "| cartpole-swingup | 3 of 3 | 100000 |" in text
     assert set(data["selection"]["studied"]) == {"point_mass-easy", "cartpole-swingup"}
     assert "reacher-easy: screened again" in text
     both = {**again, "reacher-easy": {**entry(0.3, 100000), "earlier": [first["reacher-easy"]], "look": 1}}
-    assert "new candidates are screened next" in study.render_screen({"tasks": both, "selection": study.select(both)})
+    assert "new candidates are screened next" in screen.render_screen({"tasks": both, "selection": screen.select(both)})
     third = {**both, "walker-stand": {**entry(0.3, 50000), "look": 2}}  # a new candidate that fails gets no longer look
-    text = study.render_screen({"tasks": third, "selection": study.select(third)})
+    text = screen.render_screen({"tasks": third, "selection": screen.select(third)})
     assert "walker-stand: screened again" not in text and "new candidates in a third look; the selection" in text
-    assert study.needs_another_look(third) and not study.needs_another_look(
+    assert screen.needs_another_look(third) and not screen.needs_another_look(
         {**third, "walker-stand": {"seeds": 1, "planned": 3}}
     )
     enough = {**third, "walker-stand": {**entry(0.01, 50000), "look": 2}, "hopper-stand": {**entry(0.01, 50000), "look": 2}}
-    assert not study.needs_another_look(enough)  # four qualify, one from dm_control: no further look runs
+    assert not screen.needs_another_look(enough)  # four qualify, one from dm_control: no further look runs
 
 
 def test_a_ladder_names_its_arms_where_its_configurations_labels_differ(study):
@@ -210,29 +220,29 @@ def test_a_ladder_names_its_arms_where_its_configurations_labels_differ(study):
     assert study.arm_of("pebble_like_pride", {}) == "pebble_like_pride"  # ladder: true keeps the labels
 
 
-def test_the_held_out_task_is_the_one_the_written_selection_names(study, tmp_path):
+def test_the_held_out_task_is_the_one_the_written_selection_names(screen, tmp_path):
     page = tmp_path / "label_response_screen.md"
-    assert study.held_out_tasks(page) == []  # no selection written yet
+    assert screen.held_out_tasks(page) == []  # no selection written yet
     page.with_suffix(".json").write_text(json.dumps({"selection": {"studied": None, "held_out": None}}))
-    assert study.held_out_tasks(page) == []  # every seed not in yet
+    assert screen.held_out_tasks(page) == []  # every seed not in yet
     page.with_suffix(".json").write_text(json.dumps({"selection": {"studied": ["a"], "held_out": ["cartpole-swingup"]}}))
-    assert study.held_out_tasks(page) == ["cartpole-swingup"]
-    assert study.no_ladder_text(page).startswith("The screen selected a, with cartpole-swingup held out. No label")
-    assert study.no_ladder_text(tmp_path / "missing.md") == study.NO_LADDER
+    assert screen.held_out_tasks(page) == ["cartpole-swingup"]
+    assert screen.no_ladder_text(page).startswith("The screen selected a, with cartpole-swingup held out. No label")
+    assert screen.no_ladder_text(tmp_path / "missing.md") == screen.NO_LADDER
 
 
-def test_a_run_on_code_older_than_its_rule_is_named(study, tmp_path):
+def test_a_run_on_code_older_than_its_rule_is_named(recount, screen, study, tmp_path):
     """Every run of the study's grids recorded a commit that holds its grid file's rule (the commit that first added
     the file); a run that recorded the commit before the rule was written is named."""
     shallow = subprocess.run(["git", "rev-parse", "--is-shallow-repository"], capture_output=True, text=True).stdout
     if shallow.strip() != "false":
         pytest.skip("the rule's commit needs the repository's whole history")
-    late, read = study.runs_before_their_rule(study.study_grids())
+    late, read = recount.runs_before_their_rule(study.study_grids())
     assert late == [] and read > 0
-    rule = study.rule_commit(study.SCREEN)
+    rule = recount.rule_commit(screen.SCREEN)
     before = subprocess.run(["git", "rev-parse", f"{rule}^"], capture_output=True, text=True, check=True).stdout.strip()
     for seed, commit in ((0, before), (1, rule)):
         folder = tmp_path / f"sac_Pendulum-v1_s{seed}"
         folder.mkdir()
         (folder / "settings.json").write_text(json.dumps({"version": {"commit": commit}}))
-    assert study.runs_before_their_rule([study.SCREEN], tmp_path) == (["sac_Pendulum-v1_s0"], 2)
+    assert recount.runs_before_their_rule([screen.SCREEN], tmp_path) == (["sac_Pendulum-v1_s0"], 2)
