@@ -127,10 +127,12 @@ def needs_another_look(tasks: dict[str, dict]) -> bool:
     """Whether the looks read so far, every seed of them in, leave the selection short: fewer than the tasks it
     studies and holds out, or none from dm_control (the condition a third look runs on)."""
     selection = select(tasks)
-    if selection["studied"] is None:
-        return False
-    short = len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT
-    return short or bool(selection["dm_control_missing"])
+    return selection["studied"] is not None and (too_few(selection) or bool(selection["dm_control_missing"]))
+
+
+def too_few(selection: dict[str, Any]) -> bool:
+    """Whether a read selection holds fewer tasks than the rule studies and holds out."""
+    return len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT
 
 
 def render_screen(data: dict[str, Any]) -> str:
@@ -175,7 +177,7 @@ def render_screen(data: dict[str, Any]) -> str:
     ]
     if selection["studied"] is not None and selection.get("dm_control_missing"):
         lines.append("No dm_control task qualifies: the selection holds none, where the rule asks for one.")
-    if selection["studied"] is not None and len(selection["studied"]) + len(selection["held_out"]) < STUDIED + HELD_OUT:
+    if selection["studied"] is not None and too_few(selection):
         lines.append(
             f"Fewer than {STUDIED + HELD_OUT} tasks qualify: by the rule's part (3), "
             + (
