@@ -13,7 +13,7 @@ clients, and reads the child's threads, file descriptors and memory from ``/proc
   the bytes the server let through, the child's memory, epoll and other file descriptors before and after;
 - two annotators: two feedback sessions; every clip either of them is shown is fetched and hashed, and after one
   answers a question the other answers it too: the statuses and messages seen for known-answer questions and for the
-  model's queries, and the questions whose clip bytes (or sizes) are another question's;
+  model's queries, and the questions whose clip bytes, one clip's size or both clips' sizes are another question's;
 - framing: the ``X-Frame-Options`` and ``Content-Security-Policy`` of the page and of the API.
 
     python benchmarks/web_probe.py --out benchmarks/results/web_probe.md
@@ -323,7 +323,8 @@ def two_annotators(port: int, tokens: dict[str, str], lines: "queue.Queue[dict]"
     """Both sessions answered by ana and ben; each answer repeated by the other; every clip shown fetched and hashed."""
     refusals: dict[str, list[tuple[int, str]]] = {}  # question id -> (status, message) the other got
     clips: dict[str, list[str]] = {}  # sha256 -> question ids whose clip it is
-    sizes: dict[int, set[str]] = {}
+    sizes: dict[int, set[str]] = {}  # one clip's size -> question ids (distinct clips may match by chance)
+    pair_sizes: dict[tuple[int, int], set[str]] = {}  # both clips' sizes -> question ids (a copy that keeps them)
     known: set[str] = set()
     for number in (1, 2):
         deadline = time.monotonic() + 300
@@ -338,10 +339,11 @@ def two_annotators(port: int, tokens: dict[str, str], lines: "queue.Queue[dict]"
                 query = state.get("query")
                 if query is None:
                     continue
-                for url in (query["left"], query["right"]):
-                    _, _, clip, _ = request(port, url, tokens[name])
+                shown = [request(port, url, tokens[name])[2] for url in (query["left"], query["right"])]
+                for clip in shown:
                     clips.setdefault(hashlib.sha256(clip).hexdigest(), []).append(query["id"])
                     sizes.setdefault(len(clip), set()).add(query["id"])
+                pair_sizes.setdefault(tuple(sorted(map(len, shown))), set()).add(query["id"])
                 if request(port, "/api/answer", tokens[name], {"id": query["id"], "label": 1})[0] != 200:
                     continue
                 status, _, body, _ = request(port, "/api/answer", tokens[other], {"id": query["id"], "label": 0})
@@ -362,7 +364,9 @@ def two_annotators(port: int, tokens: dict[str, str], lines: "queue.Queue[dict]"
         seen = sorted({answer for question in ids for answer in refusals.get(question, [])})
         shared = {q for holders in clips.values() if len(set(holders)) > 1 for q in holders if q in ids}
         same_size = {q for holders in sizes.values() if len(holders) > 1 for q in holders if q in ids}
-        rows.append(f"| {kind} | {len(ids)} | {'; '.join(f'{s} {m!r}' for s, m in seen)} | {len(shared)} | {len(same_size)} |")
+        same_pair = {q for holders in pair_sizes.values() if len(holders) > 1 for q in holders if q in ids}
+        answers = "; ".join(f"{s} {m!r}" for s, m in seen)
+        rows.append(f"| {kind} | {len(ids)} | {answers} | {len(shared)} | {len(same_size)} | {len(same_pair)} |")
     return rows
 
 
@@ -424,8 +428,8 @@ def main() -> None:
             "After one answers a question, the other answers it too; every clip either of them is shown is fetched and hashed.",
             "",
             "| questions | how many | what the other was answered | sharing a clip's bytes with another question"
-            " | sharing a clip's size |",
-            "|---|---|---|---|---|",
+            " | sharing a clip's size (chance matches included) | sharing both clips' sizes |",
+            "|---|---|---|---|---|---|",
             *two_annotators(port, tokens, lines, args.pairs),
             "",
             "## Framing",
