@@ -221,6 +221,14 @@ def finish(thread: threading.Thread, result: dict) -> np.ndarray:
     return result["labels"]
 
 
+def time_passes(teacher: WebTeacher, name: str, seconds: float) -> None:
+    """What ``name`` is shown has been shown ``seconds`` longer: hand-over time without sleeping on a loaded machine."""
+    session = teacher.store.session
+    assert session is not None
+    shown, since = session.shown_since[name]
+    session.shown_since[name] = (shown, since - seconds)
+
+
 def find(teacher: WebTeacher, question_id: str) -> Question:
     session = teacher.store.session
     assert session is not None
@@ -320,7 +328,7 @@ def test_a_timeout_skips_the_rest(open_session, capsys):
 
 def test_while_answers_are_awaited_the_console_says_so_with_the_url(open_session, capsys):
     teacher = open_session
-    teacher.store.wait(timeout=0.45, reminder_interval=0.1, url=teacher.url)  # nobody answers: the page was never opened
+    teacher.store.wait(timeout=1.5, reminder_interval=0.1, url=teacher.url)  # nobody answers: the page was never opened
     reminders = [line for line in capsys.readouterr().out.splitlines() if "still waiting" in line]
     assert len(reminders) >= 3 and all(teacher.url in line and "page last seen: never" in line for line in reminders)
 
@@ -559,13 +567,13 @@ def test_two_answers_per_query_are_averaged_and_undo_takes_back_ones_own(serve, 
 
 def test_a_query_shown_too_long_goes_to_an_idle_annotator(serve, tmp_path):
     """ben's page keeps polling but he never answers: after hand_over_after, ana, who has nothing left, is handed it."""
-    teacher = serve(annotators=["ana", "ben"], hand_over_after=0.5)
+    teacher = serve(annotators=["ana", "ben"], hand_over_after=30)
     run = Run(tmp_path / "preferences.jsonl")
     thread, result = ask_in_thread(teacher, make_pairs(1), run.context())
     ana, ben = Page(teacher, "ana"), Page(teacher, "ben")
     held = ben.shown()
     assert held is not None and ana.shown() is None  # the only query is ben's, and it is not overdue yet
-    time.sleep(0.6)
+    time_passes(teacher, "ben", 31)
     assert ben.shown() == held  # still polling: his page is not quiet, only slow
     assert ana.shown() == held and ben.shown() is None  # handed over
     assert ben.answer(held, 0) == 403 and ana.answer(held, 1) == 200
@@ -702,7 +710,7 @@ def test_two_annotators_are_refused_alike_on_known_answers_and_queries(serve, tm
 def test_a_known_answer_question_shown_too_long_goes_over_as_a_query_would(serve, tmp_path, monkeypatch):
     """ana is shown a known-answer question and does not answer it; ben, who has nothing left, is handed it after
     hand_over_after, as he would be a query: one that never went over would tell itself apart."""
-    teacher = serve(annotators=["ana", "ben"], known_answer_rate=0.5, hand_over_after=0.3)
+    teacher = serve(annotators=["ana", "ben"], known_answer_rate=0.5, hand_over_after=30)
     teacher.quality.clips = None  # no clips to copy: the pair's own files
     inputs = np.zeros((2, 4, 3))
     teacher.quality.add_known(KnownPair(query_id(inputs), inputs, ("k-left.mp4", "k-right.mp4"), 1.0, "true reward"))
@@ -719,7 +727,7 @@ def test_a_known_answer_question_shown_too_long_goes_over_as_a_query_would(serve
     assert known != "q" and find(teacher, known).known == 1.0
     assert ben.shown() == "q" and ben.answer("q", 1) == 200  # the query preloaded for ana went to ben
     assert ben.shown() is None
-    time.sleep(0.4)
+    time_passes(teacher, "ana", 31)
     assert ana.shown() == known  # still polling, not answering
     assert ben.shown() == known and ana.shown() is None  # handed over
     assert ana.answer(known, 1) == 403 and ben.answer(known, 1) == 200

@@ -47,11 +47,11 @@ def get(url: str, body: bytes | None = None) -> int:
 def exchange(port: int, data: bytes, timeout: float = 10.0, half_close: bool = False) -> tuple[bytes, float]:
     """Send ``data`` on a new connection (then close its sending side, with ``half_close``); (everything the server
     answers until it closes, seconds it took)."""
+    start, answer = time.monotonic(), b""  # the server's deadline counts from its accept, after this
     with socket.create_connection(("127.0.0.1", port), timeout=timeout) as connection:
         connection.sendall(data)
         if half_close:
             connection.shutdown(socket.SHUT_WR)
-        start, answer = time.monotonic(), b""
         while chunk := connection.recv(65536):
             answer += chunk
         return answer, time.monotonic() - start
@@ -119,26 +119,28 @@ def test_a_request_sent_byte_by_byte_is_dropped_at_its_deadline(attached, caplog
     logged (it is not a request), and the server goes on."""
     teacher = attached(read_timeout=1.0, annotators=["ana"])  # a request without a token would be logged (401)
     capfd.readouterr()
-    connections = [socket.create_connection(("127.0.0.1", teacher.port), timeout=5) for _ in range(5)]
-    start, closed = time.monotonic(), {}
+    connections, opened, closed = [], [], {}  # each timed from its own connect: the deadline counts from its accept
+    for _ in range(5):
+        opened.append(time.monotonic())
+        connections.append(socket.create_connection(("127.0.0.1", teacher.port), timeout=5))
     try:
         for connection in connections:
             connection.sendall(b"GET /api/state HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
-        while time.monotonic() - start < 3.0 and len(closed) < len(connections):
+        while time.monotonic() - opened[0] < 8.0 and len(closed) < len(connections):  # a deadline per read: never
             for i, connection in enumerate(connections):
                 if i not in closed:
                     if still_open(connection):
                         try:
                             connection.sendall(b"a")
                         except OSError:
-                            closed[i] = time.monotonic() - start
+                            closed[i] = time.monotonic() - opened[i]
                     else:
-                        closed[i] = time.monotonic() - start
+                        closed[i] = time.monotonic() - opened[i]
             time.sleep(0.2)
     finally:
         for connection in connections:
             connection.close()
-    assert len(closed) == len(connections) and all(0.8 < took < 2.0 for took in closed.values()), closed
+    assert len(closed) == len(connections) and all(0.9 < took < 5.0 for took in closed.values()), closed
     time.sleep(0.2)  # the server's threads would log after they answered
     assert "X-Slow" not in caplog.text and "GET /api/state" not in caplog.text + "".join(capfd.readouterr())
     assert get(teacher.url + "api/state") == 401  # the server goes on
@@ -168,11 +170,15 @@ def test_open_connections_are_capped_and_the_page_still_answers(attached):
     before = len(handler_threads())
     idle = [socket.create_connection(("127.0.0.1", teacher.port), timeout=5) for _ in range(40)]
     try:
-        time.sleep(0.5)
+        end = time.monotonic() + 10  # the server accepts and closes them in its own time on a loaded machine
+        while time.monotonic() < end and (
+            len(handler_threads()) - before > 8 or sum(still_open(connection) for connection in idle) > 8
+        ):
+            time.sleep(0.1)
         assert len(handler_threads()) - before <= 8
         assert sum(still_open(connection) for connection in idle) <= 8
         start = time.monotonic()
-        assert get(teacher.url + "api/state") == 200 and time.monotonic() - start < 2
+        assert get(teacher.url + "api/state") == 200 and time.monotonic() - start < 10
     finally:
         for connection in idle:
             connection.close()

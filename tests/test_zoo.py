@@ -153,7 +153,7 @@ def test_optimize_two_trials_with_sqlite_storage(tmp_path):
 
     storage = f"sqlite:///{tmp_path / 'study.db'}"
     zoo("train", "--algo", "pebble", "--env", "sb3_pride/walker-walk-v0", "-n", "300", "-f", "logs",
-        "-conf", str(HYPERPARAMS / "cpu/pebble.yml"), "-optimize", "--n-trials", "2", "--n-jobs", "1",
+        "-conf", str(HYPERPARAMS / "cpu/pebble.yml"), "-optimize", "--n-trials", "2", "--n-jobs", "1", "--seed", "0",
         "--sampler", "random", "--pruner", "none", "--n-evaluations", "1", "--eval-episodes", "1",
         "--storage", storage, "--study-name", "pebble-walker", "-params", *TINY_PEBBLE, cwd=tmp_path)  # fmt: skip
     study = optuna.load_study(study_name="pebble-walker", storage=storage)
