@@ -13,19 +13,25 @@ from sb3_pride.common.teachers import InteractiveTeacher, ScriptedTeacher
 
 
 class WatchingTeacher:
-    """An oracle that takes ``seconds`` per session and notes the model's step count when it starts and ends."""
+    """An oracle that takes ``seconds`` per session (with ``steps``: until the model has taken that many steps more, at
+    most ``seconds``, whatever the machine's speed) and notes the model's step count when it starts and ends."""
 
-    def __init__(self, seconds: float):
+    def __init__(self, seconds: float, steps: int | None = None):
         self.oracle = ScriptedTeacher.from_preset("oracle", seed=0)
-        self.seconds = seconds
+        self.seconds, self.wait_steps = seconds, steps
         self.model: PEBBLE | None = None
         self.steps: list[tuple[int, int]] = []
         self.threads: set[str] = set()
         self.answers: dict[bytes, float] = {}
 
     def __call__(self, pairs):
-        start = self.model.num_timesteps
-        threading.Event().wait(self.seconds)
+        start, deadline = self.model.num_timesteps, time.monotonic() + self.seconds
+        if self.wait_steps is None:
+            threading.Event().wait(self.seconds)
+        while (
+            self.wait_steps is not None and self.model.num_timesteps < start + self.wait_steps and time.monotonic() < deadline
+        ):
+            time.sleep(0.01)
         labels = self.oracle(pairs)
         self.steps.append((start, self.model.num_timesteps))
         self.threads.add(threading.current_thread().name)
@@ -36,7 +42,9 @@ class WatchingTeacher:
 
 @pytest.mark.parametrize("asynchronous", [False, True])
 def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, asynchronous):
-    teacher = WatchingTeacher(seconds=1.0)
+    # answered 50 steps later while training goes on (the next session falls within the run on any machine); blocking
+    # the main thread for a second otherwise
+    teacher = WatchingTeacher(seconds=60, steps=50) if asynchronous else WatchingTeacher(seconds=1.0)
     journal = tmp_path / "journal.jsonl"
     model = PEBBLE(
         "MlpPolicy", "Pendulum-v1", seed=0, teacher=teacher, asynchronous_feedback=asynchronous,
@@ -46,7 +54,7 @@ def test_training_goes_on_while_a_slow_teacher_answers(tiny_kwargs, tmp_path, as
     model.learn(1000)
     assert len(teacher.steps) == 3 and model.phase.sessions == 3 and model.feedback.pending is None
     if asynchronous:
-        # each session's answers took a second: the agent kept stepping meanwhile, on the older reward
+        # each session's answers took 50 steps: the agent kept stepping meanwhile, on the older reward
         assert all(end > start for start, end in teacher.steps)
         assert teacher.threads == {"teacher"}
         # the next session is published only once the previous one is answered
