@@ -36,6 +36,12 @@ from results_recount import GRIDS, ROOT, collect, last_correlations, relative, r
 
 #: labels to the target: this share of what PEBBLE reaches at the ladder's top budget
 TARGET_SHARE = 0.9
+#: what the ladders' arms are, for the tables' note and the figure's legend
+ARM_NAMES = {
+    "pebble": "PEBBLE()",
+    "pride": "PRIDE()",
+    "pebble_like_pride": "PEBBLE with PRIDE's reward learning and label schedule",
+}
 
 
 def labels_to_target(budgets: np.ndarray, returns: np.ndarray, target: float) -> float:
@@ -309,7 +315,11 @@ def render_labels_table(data: dict[str, Any]) -> str:
         f"\nThe target is {data['target_share']:.0%} of the share of SAC's return that {reference} reaches at the "
         "ladder's top budget; labels are interpolated on log2(budget) where an arm's mean first reaches it (∞: not "
         "within the ladder; ≤: reached at its lowest budget, so at most that many, and the ratio at most that; — where "
-        f"{reference} itself reaches it there); intervals are 95% percentile bootstraps over seeds.\n"
+        f"{reference} itself reaches it there); intervals are 95% percentile bootstraps over seeds. "
+        + "; ".join(
+            f"{arm}: {name}" for arm, name in ARM_NAMES.items() if any(arm in t["labels"] for t in data["tasks"].values())
+        )
+        + ".\n"
     )
     return "\n".join(lines) + "\n" + note
 
@@ -354,20 +364,20 @@ def draw_ladders(data: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     tasks = data["tasks"]
-    figure, axes = plt.subplots(1, max(len(tasks), 1), figsize=(4.5 * max(len(tasks), 1), 3.5), squeeze=False)
+    figure, axes = plt.subplots(1, max(len(tasks), 1), figsize=(5 * max(len(tasks), 1), 3.8), squeeze=False)
     for axis, (name, task) in zip(axes[0], tasks.items(), strict=False):
         for arm, points in task["arms"].items():
             shown = [p for p in points if p["share"] is not None]
             shares = np.array([p["share"] for p in shown]).reshape(-1, 3)
             budgets = [p["labels"] for p in shown]
-            axis.plot(budgets, shares[:, 0], marker="o", label=arm)
+            axis.plot(budgets, shares[:, 0], marker="o", label=ARM_NAMES.get(arm, arm))
             axis.fill_between(budgets, shares[:, 1], shares[:, 2], alpha=0.2)
         top = task["arms"].get(data["reference"], [{}])[-1].get("share")
         if top is not None:
             axis.axhline(data["target_share"] * top[0], color="grey", linestyle="--", linewidth=1, label="target")
         axis.set_xscale("log", base=2)
         axis.set(title=name, xlabel="labels", ylabel="share of SAC's return")
-        axis.legend(fontsize="small")
+        axis.legend(fontsize="x-small")
     path.parent.mkdir(parents=True, exist_ok=True)
     figure.tight_layout()
     figure.savefig(path, dpi=120)
