@@ -346,7 +346,8 @@ def two_annotators(port: int, tokens: dict[str, str], lines: "queue.Queue[dict]"
                 for clip in shown:
                     clips.setdefault(hashlib.sha256(clip).hexdigest(), []).append(query["id"])
                     sizes.setdefault(len(clip), set()).add(query["id"])
-                pair_sizes.setdefault(tuple(sorted(map(len, shown))), set()).add(query["id"])
+                small, large = sorted(map(len, shown))
+                pair_sizes.setdefault((small, large), set()).add(query["id"])
                 if request(port, "/api/answer", tokens[name], {"id": query["id"], "label": 1})[0] != 200:
                     continue
                 status, _, body, _ = request(port, "/api/answer", tokens[other], {"id": query["id"], "label": 0})
