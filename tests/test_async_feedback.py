@@ -28,10 +28,9 @@ class WatchingTeacher:
         start, deadline = self.model.num_timesteps, time.monotonic() + self.seconds
         if self.wait_steps is None:
             threading.Event().wait(self.seconds)
-        while (
-            self.wait_steps is not None and self.model.num_timesteps < start + self.wait_steps and time.monotonic() < deadline
-        ):
-            time.sleep(0.01)
+        else:
+            while self.model.num_timesteps < start + self.wait_steps and time.monotonic() < deadline:
+                time.sleep(0.01)
         labels = self.oracle(pairs)
         self.steps.append((start, self.model.num_timesteps))
         self.threads.add(threading.current_thread().name)

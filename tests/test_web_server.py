@@ -13,7 +13,7 @@ import urllib.error
 import urllib.request
 
 import pytest
-from test_web import FakeBuffer, FakeEnv, black_clip_teachers
+from test_web import FakeBuffer, FakeEnv, black_clip_teachers, wait
 
 from sb3_pride.human import WebTeacher
 
@@ -170,11 +170,8 @@ def test_open_connections_are_capped_and_the_page_still_answers(attached):
     before = len(handler_threads())
     idle = [socket.create_connection(("127.0.0.1", teacher.port), timeout=5) for _ in range(40)]
     try:
-        end = time.monotonic() + 10  # the server accepts and closes them in its own time on a loaded machine
-        while time.monotonic() < end and (
-            len(handler_threads()) - before > 8 or sum(still_open(connection) for connection in idle) > 8
-        ):
-            time.sleep(0.1)
+        # the server accepts and closes them in its own time on a loaded machine
+        wait(lambda: len(handler_threads()) - before <= 8 and sum(map(still_open, idle)) <= 8, timeout=10)
         assert len(handler_threads()) - before <= 8
         assert sum(still_open(connection) for connection in idle) <= 8
         start = time.monotonic()
