@@ -274,19 +274,41 @@ def read_ladders(grid_files: list[Path], reference: str = "pebble", runs_folder:
     return {"reference": reference, "target_share": TARGET_SHARE, "tasks": tasks}
 
 
-def number_text(value: float, at_most: bool = False) -> str:
-    """A count of labels or a ratio as the tables write it: ∞ where the ladder does not reach, — where undefined,
+def number_text(value: float, at_most: bool = False, count: bool = False) -> str:
+    """A ratio, or a ``count`` of labels, as the tables write it: ∞ where the ladder does not reach, — where undefined,
     ≤ where it is an upper bound (reached at the ladder's lowest budget)."""
-    text = "∞" if value == math.inf else "—" if math.isnan(value) else f"{value:.2f}" if value < 10 else f"{value:.0f}"
+    if value == math.inf or math.isnan(value):
+        text = "∞" if value == math.inf else "—"
+    elif count:
+        text = f"{value:.0f}" if value >= 10 or value == round(value) else f"{value:.1f}"
+    else:
+        text = f"{value:.2f}" if value < 10 else f"{value:.0f}"
     return f"≤ {text}" if at_most and math.isfinite(value) else text
 
 
-def interval_text(values: list[float]) -> str:
-    return "[" + ", ".join(number_text(v) for v in values) + "]"
+def interval_text(values: list[float], count: bool = False) -> str:
+    return "[" + ", ".join(number_text(v, count=count) for v in values) + "]"
+
+
+def ratio_text(ratio: dict[str, Any]) -> str:
+    """An arm's ratio to PEBBLE's labels with its interval."""
+    return f"{number_text(ratio['value'], ratio.get('at_most', False))} {interval_text(ratio['interval'])}"
+
+
+def labels_text(labels: dict[str, Any]) -> str:
+    """An arm's labels to the target with their interval."""
+    return f"{number_text(labels['labels'], labels.get('at_most', False), count=True)} {interval_text(labels['interval'], count=True)}"
 
 
 def share_text(share: list[float] | None) -> str:
     return "—" if share is None else f"{share[0]:.2f} {interval_text(share[1:])}"
+
+
+def task_text(name: str, task: dict[str, Any]) -> str:
+    """A task as the tables name it: held out or not, and how many of its runs are in until all are."""
+    done, planned = task["runs"]
+    shown = f"{name} (held out)" if task.get("held_out") else name
+    return shown if done == planned else f"{shown} ({done} of {planned} runs in: not a reading yet)"
 
 
 def render_labels_table(data: dict[str, Any]) -> str:
@@ -297,16 +319,12 @@ def render_labels_table(data: dict[str, Any]) -> str:
         "|---|---|---|---|---|",
     ]
     for name, task in data["tasks"].items():
-        done, planned = task["runs"]
-        shown = f"{name} (held out)" if task.get("held_out") else name
-        shown = shown if done == planned else f"{shown} ({done} of {planned} runs in: not a reading yet)"
+        shown = task_text(name, task)
         for arm, read in task["labels"].items():
             labels, ratio = read["arm"], read["ratio"]
             top = task["arms"][arm][-1]
             lines.append(
-                f"| {shown} | {arm} | {number_text(labels['labels'], labels.get('at_most', False))} "
-                f"{interval_text(labels['interval'])} | {number_text(ratio['value'], ratio.get('at_most', False))} "
-                f"{interval_text(ratio['interval'])} | {share_text(top['share'])} "
+                f"| {shown} | {arm} | {labels_text(labels)} | {ratio_text(ratio)} | {share_text(top['share'])} "
                 f"({top['labels']} labels) |"
             )
     if len(lines) == 2:
@@ -322,6 +340,38 @@ def render_labels_table(data: dict[str, Any]) -> str:
         + ".\n"
     )
     return "\n".join(lines) + "\n" + note
+
+
+def render_labels_summary(data: dict[str, Any]) -> str:
+    """The README's short form of :func:`render_labels_table`: a row per task, each arm's labels to the target and,
+    beside every arm but PEBBLE, its ratio to PEBBLE's."""
+    reference = data["reference"]
+    arms = list(dict.fromkeys(arm for task in data["tasks"].values() for arm in task["labels"]))
+    others = [arm for arm in arms if arm != reference]
+    name = ARM_NAMES.get(reference, reference)
+    header = [f"{name}: labels [95% CI]"] + [f"{ARM_NAMES.get(arm, arm)}: labels; ÷ {name}" for arm in others]
+    lines = ["| task | " + " | ".join(header) + " |", "|---" * (len(header) + 1) + "|"]
+    for task_name, task in data["tasks"].items():
+        cells = []
+        for arm in arms:
+            read = task["labels"].get(arm)
+            if read is None:
+                cells.append("—")
+                continue
+            labels, ratio = read["arm"], read["ratio"]
+            text = labels_text(labels)
+            if arm != reference:
+                text += f"; {ratio_text(ratio)}"
+            cells.append(text)
+        lines.append(f"| {task_text(task_name, task)} | " + " | ".join(cells) + " |")
+    if len(lines) == 2:
+        return no_ladder_text()
+    return (
+        "\n".join(lines)
+        + f"\n\nThe target: {data['target_share']:.0%} of the share of SAC's return {name} reaches at the ladder's top "
+        "budget; labels interpolated on log2(budget), 95% bootstrap intervals over seeds; the paper's claim reads the "
+        f"ratio ÷ {name} as at most 0.5.\n"
+    )
 
 
 def render_ladders(data: dict[str, Any]) -> str:

@@ -19,8 +19,9 @@ better arm's best one and two seeds). Each row states the budget its runs *asked
 - the summary table of ``README.md``, between ``<!-- results:start -->`` and ``<!-- results:end -->`` (the rows of the
   grid files marked ``summary: true``); nothing outside the markers is touched.
 - the label-response study (grid files marked ``ladder: true``, read by ``benchmarks/label_response.py``): labels to
-  the target and the figure between ``<!-- labels:start -->`` and ``<!-- labels:end -->`` of the README and the
-  results README, and every point of every ladder in ``docs/_generated/label_response.md``.
+  the target and the figure between ``<!-- labels:start -->`` and ``<!-- labels:end -->`` of the README (a row per
+  task) and the results README (a row per task and arm), and every point of every ladder in
+  ``docs/_generated/label_response.md``.
 
 Each row is compared with PEBBLE at its task's largest budget set (400 queries on DMC, 2000 on Meta-World, where the
 tier's 60k steps ask 1200 of them); a grid file's
@@ -128,12 +129,14 @@ def replace_block(text: str, block: str, where: str, start: str = START, end: st
     return f"{head}{start}\n{block}{end}{tail}"
 
 
-def labels_block(ladders: dict[str, Any], folder: Path) -> str:
-    """The labels-to-target table and, once a ladder is in, the figure, linked from a page in ``folder``."""
+def labels_block(ladders: dict[str, Any], folder: Path, short: bool = False) -> str:
+    """The labels-to-target table (``short``: a row per task, as the README shows it) and, once a ladder is in, the
+    figure, linked from a page in ``folder``."""
     if not ladders["tasks"]:
         return label_response.no_ladder_text()
     figure = os.path.relpath(LABELS_FIGURE, folder)
-    return label_response.render_labels_table(ladders) + f"\n![Share of SAC's return against labels]({figure})\n"
+    table = label_response.render_labels_summary(ladders) if short else label_response.render_labels_table(ladders)
+    return table + f"\n![Share of SAC's return against labels]({figure})\n"
 
 
 def write_all(data: dict[str, Any], readme: Path = README, claim_pages: list[Path] | None = None) -> None:
@@ -152,7 +155,8 @@ def write_all(data: dict[str, Any], readme: Path = README, claim_pages: list[Pat
         (CHECKS_START, CHECKS_END, render_checks(data) or "No grid file states a check.\n"),
     ]
     for path in CLAIM_PAGES if claim_pages is None else claim_pages:
-        for start, end, table in [*blocks, (LABELS_START, LABELS_END, labels_block(ladders, path.parent))]:
+        labels = labels_block(ladders, path.parent, short=path == readme)
+        for start, end, table in [*blocks, (LABELS_START, LABELS_END, labels)]:
             text = path.read_text()
             if start in text or end in text:
                 path.write_text(replace_block(text, table, relative(path), start, end))

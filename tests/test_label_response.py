@@ -156,6 +156,9 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     assert walker["labels"]["pebble"]["ratio"]["value"] == pytest.approx(1.0)
     table = study.render_labels_table(data)
     assert "| Pendulum-v1 | pride |" in table and "÷ pebble" in table
+    short = study.render_labels_summary(data)  # the README's: a row per task, every arm's labels, the ratios beside
+    assert "| task | PEBBLE(): labels [95% CI] | PRIDE(): labels; ÷ PEBBLE() |" in short
+    assert short.count("| Pendulum-v1 | ") == 1 and "| Pendulum-v1 | 64 [" in short and "; 0.50 [" in short
     assert "| pride | 8 | 4 |" in study.render_ladders(data)
     assert walker["labels"]["pride"]["deciding"] == [16, 32] and "pride 16, 32" in study.render_ladders(data)
     assert "| pebble | 128 | 4 | 1.01 [1.00, 1.01] | — | 0.95 [0.95, 0.95] (4 seeds) |" in study.render_ladders(data)
@@ -171,6 +174,7 @@ def test_ladders_read_shares_labels_to_the_target_and_the_ratio_from_run_folders
     page = load_script("results_page")
     block = page.labels_block(data, page.ROOT / "benchmarks" / "results")
     assert "(../../docs/_generated/label_response.png)" in block  # the figure, linked from the results README
+    assert "| pride |" in block and "| pride |" not in page.labels_block(data, page.ROOT, short=True)
     assert page.labels_block({"tasks": {}}, page.ROOT).endswith("No label-response ladder has all its runs in yet.\n")
 
 
