@@ -304,6 +304,10 @@ def share_text(share: list[float] | None) -> str:
     return "—" if share is None else f"{share[0]:.2f} {interval_text(share[1:])}"
 
 
+def seeds_text(count: int) -> str:
+    return f"{count} seed" if count == 1 else f"{count} seeds"
+
+
 def task_text(name: str, task: dict[str, Any]) -> str:
     """A task as the tables name it: held out or not, and how many of its runs are in until all are."""
     done, planned = task["runs"]
@@ -378,7 +382,7 @@ def render_ladders(data: dict[str, Any]) -> str:
     """Every point of every ladder: seeds, share of SAC's return, last corr(r̂, r); SAC on the final r̂ beside."""
     lines = []
     for name, task in data["tasks"].items():
-        ceiling = "not run" if task["ceiling"] is None else f"{task['ceiling']:.1f} ({task['ceiling_seeds']} seeds)"
+        ceiling = "not run" if task["ceiling"] is None else f"{task['ceiling']:.1f} ({seeds_text(task['ceiling_seeds'])})"
         deciding = "; ".join(
             f"{arm} {', '.join(map(str, read.get('deciding', []))) or 'none'}" for arm, read in task["labels"].items()
         )
@@ -397,7 +401,7 @@ def render_ladders(data: dict[str, Any]) -> str:
             for point in points:
                 corr = "—" if point["corr"] is None else f"{point['corr']:.2f}"
                 final = finals.get(point["labels"])
-                final_text = "—" if final is None else f"{share_text(final['share'])} ({final['seeds']} seeds)"
+                final_text = "—" if final is None else f"{share_text(final['share'])} ({seeds_text(final['seeds'])})"
                 lines.append(
                     f"| {arm} | {point['labels']} | {point['seeds']} | {share_text(point['share'])} | {corr} | {final_text} |"
                 )
