@@ -351,6 +351,8 @@ def render_labels_summary(data: dict[str, Any]) -> str:
     beside every arm but PEBBLE, its ratio to PEBBLE's."""
     reference = data["reference"]
     arms = list(dict.fromkeys(arm for task in data["tasks"].values() for arm in task["labels"]))
+    if not arms:
+        return no_ladder_text()
     others = [arm for arm in arms if arm != reference]
     name = ARM_NAMES.get(reference, reference)
     header = [f"{name}: labels [95% CI]"] + [f"{ARM_NAMES.get(arm, arm)}: labels; ÷ {name}" for arm in others]
@@ -362,14 +364,11 @@ def render_labels_summary(data: dict[str, Any]) -> str:
             if read is None:
                 cells.append("—")
                 continue
-            labels, ratio = read["arm"], read["ratio"]
-            text = labels_text(labels)
+            text = labels_text(read["arm"])
             if arm != reference:
-                text += f"; {ratio_text(ratio)}"
+                text += f"; {ratio_text(read['ratio'])}"
             cells.append(text)
         lines.append(f"| {task_text(task_name, task)} | " + " | ".join(cells) + " |")
-    if len(lines) == 2:
-        return no_ladder_text()
     return (
         "\n".join(lines)
         + f"\n\nThe target: {data['target_share']:.0%} of the share of SAC's return {name} reaches at the ladder's top "
